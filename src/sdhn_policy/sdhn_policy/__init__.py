@@ -1,0 +1,1 @@
+"""Decentralised execution: the actor network's NumPy runtime, weight files, and the actor node."""

@@ -1,0 +1,1 @@
+"""Simulation side of sdhn: environments (MAIF, RWARE), the simulator node, recording and replay."""

@@ -49,7 +49,8 @@ if ! stamp_ok deps "$deps_key"; then
   # point them at this venv's Python and NumPy headers so rosidl can build our interfaces.
   py_inc=$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
   np_inc=$("$VENV/bin/python" -c "import numpy; print(numpy.get_include())")
-  grep -rl "/opt/python/cp311-cp311" "$VENV/share" --include='*.cmake' 2>/dev/null | while read -r f; do
+  { grep -rl "/opt/python/cp311-cp311" "$VENV/share" --include='*.cmake' 2>/dev/null || true; } \
+    | while read -r f; do
     sed -i "s#/opt/python/cp311-cp311/include/python3.11#$py_inc#g;
             s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$np_inc#g" "$f"
   done

@@ -1,4 +1,7 @@
-"""ament_python package sdhn_sim; installed by colcon on a full ROS install, or by scripts/setup.sh."""
+"""ament_python package sdhn_sim.
+
+Installed by colcon on a full ROS install, or in editable mode by scripts/setup.sh.
+"""
 
 from setuptools import find_packages, setup
 
@@ -17,7 +20,9 @@ setup(
     zip_safe=False,
     maintainer="sdhn developers",
     maintainer_email="sdhn-dev@example.com",
-    description="SDHN simulation: MAIF and RWARE environments, simulator node, MCAP recorder and replay.",
+    description=(
+        "SDHN simulation: MAIF and RWARE environments, simulator node, MCAP recorder and replay."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

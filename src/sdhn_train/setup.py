@@ -1,4 +1,7 @@
-"""ament_python package sdhn_train; installed by colcon on a full ROS install, or by scripts/setup.sh."""
+"""ament_python package sdhn_train.
+
+Installed by colcon on a full ROS install, or in editable mode by scripts/setup.sh.
+"""
 
 from setuptools import find_packages, setup
 
@@ -17,7 +20,7 @@ setup(
     zip_safe=False,
     maintainer="sdhn developers",
     maintainer_email="sdhn-dev@example.com",
-    description="SDHN centralised training: hypergraph critic, PPO, baselines, in-process trainer and trainer node.",
+    description=("SDHN centralised training: hypergraph critic, PPO, baselines, trainers."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -33,7 +33,7 @@ def run_node(
     argv: Sequence[str] | None = None,
     on_stop: Callable[[Node], None] | None = None,
 ) -> int:
-    """Run one node until SIGINT/SIGTERM or until it calls ``context.shutdown()``; returns the exit code.
+    """Run one node until SIGINT/SIGTERM or ``context.shutdown()``; returns the exit code.
 
     ``make_node`` receives the context and the command-line arguments with ROS arguments removed.
     ``on_stop`` runs before the node is destroyed (flush files, stop worker threads).

@@ -14,8 +14,23 @@ from functools import cache
 from pathlib import Path
 
 PRIMITIVES = frozenset(
-    "bool byte char float32 float64 int8 uint8 int16 uint16 int32 uint32 int64 uint64 string "
-    "wstring".split()
+    [
+        "bool",
+        "byte",
+        "char",
+        "float32",
+        "float64",
+        "int8",
+        "uint8",
+        "int16",
+        "uint16",
+        "int32",
+        "uint32",
+        "int64",
+        "uint64",
+        "string",
+        "wstring",
+    ]
 )
 SEPARATOR = "=" * 80
 _ARRAY_OR_BOUND = re.compile(r"(\[[^\]]*\]|<=\d+)")

@@ -37,7 +37,9 @@ def main(argv: list[str] | None = None) -> int:
     package, executable, rest = args[1], args[2], args[3:]
     found = executables(package)
     if not found:
-        print(f"ros2: package '{package}' not found (known: {', '.join(PACKAGES)})", file=sys.stderr)
+        print(
+            f"ros2: package '{package}' not found (known: {', '.join(PACKAGES)})", file=sys.stderr
+        )
         return 2
     if executable not in found:
         print(

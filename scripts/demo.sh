@@ -20,7 +20,7 @@ for i in $(seq 0 $((ROBOTS - 1))); do
   start "actor_$i" sdhn_policy actor --ros-args -r __ns:=/sdhn/robot_$i -p robot_id:=$i
 done
 for _ in $(seq 100); do
-  ready=$(grep -l "ready" "$RUN_DIR"/logs/*.log 2>/dev/null | wc -l)
+  ready=$( (grep -l "ready" "$RUN_DIR"/logs/*.log 2>/dev/null || true) | wc -l)
   [ "$ready" -ge $((ROBOTS + 3)) ] && break
   sleep 0.2
 done

@@ -73,27 +73,33 @@ def resolve_moves(
     moving = (moves != 0) & ~blocked
     collided = (moves != 0) & blocked
     tgt = np.where(moving, cur + moves, cur)
-    n = cur.shape[0]
-    dup = np.zeros(n, dtype=bool)
-    while True:
-        # vertex conflicts: per target cell, a stayer sorts first, then movers by index
-        order = np.argsort(tgt * 2 + moving, kind="stable")
-        cells = tgt[order]
-        dup[1:] = cells[1:] == cells[:-1]
-        lose = order[dup[:n]]
-        # swap conflicts: i moves onto j's cell while j moves onto i's
+    # Round 1, all rules at once. Vertex: per target cell a stayer sorts first, then movers by
+    # index; everyone after the first loses. Swap: i moves onto j's cell while j moves onto i's.
+    order = np.argsort(tgt * 2 + moving, kind="stable")
+    cells = tgt[order]
+    dup = np.zeros(cur.shape[0], dtype=bool)
+    dup[1:] = cells[1:] == cells[:-1]
+    j = occupant[tgt]
+    lose = moving & (j >= 0) & (tgt[j] == cur)
+    lose[order[dup]] = True
+    # Later rounds. Movers' targets never change (a loser's target becomes its own cell), so no
+    # new mover/mover vertex or swap conflict can appear: only a mover heading for the cell of a
+    # robot that has just been stopped. Iterate that until nothing changes.
+    while lose.any():
+        tgt[lose] = cur[lose]
+        moving &= ~lose
+        collided |= lose
         j = occupant[tgt]
-        swap = moving & (j >= 0) & (tgt[j] == cur)
-        if lose.size == 0 and not swap.any():
-            return tgt, collided
-        swap[lose] = True
-        tgt[swap] = cur[swap]
-        moving &= ~swap
-        collided |= swap
+        lose = moving & ~moving[j]  # j >= 0 for every mover whose target is occupied
+        lose &= j >= 0
+    return tgt, collided
 
 
 class MaifEnv:
     """B MAIF environments x N robots (implements ``BatchedEnv``).
+
+    ``config`` is a configuration name, a ``MaifConfig`` (its instance set is loaded or
+    generated) or a ready ``MaifInstances`` (e.g. a hand-built scenario in a test).
 
     Env ``b`` of a batch seeded ``s`` behaves exactly like a single environment seeded ``s + b``
     (each draws its instances with its own generator) in ``"random"`` order. In ``"round_robin"``
@@ -106,7 +112,7 @@ class MaifEnv:
 
     def __init__(
         self,
-        config: MaifConfig | str,
+        config: MaifConfig | MaifInstances | str,
         num_envs: int = 1,
         seed: int = 0,
         *,
@@ -116,7 +122,7 @@ class MaifEnv:
         rewards: MaifRewards | None = None,
         name: str | None = None,
     ) -> None:
-        inst: MaifInstances = load_instances(config)
+        inst = config if isinstance(config, MaifInstances) else load_instances(config)
         cfg = inst.config
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
@@ -147,7 +153,6 @@ class MaifEnv:
         self.num_robots = n = cfg.num_robots
         self.state_size = n * OBS_SIZE
         self.max_steps = int(max_steps)
-        self.rewards = rewards or MaifRewards()
         self.instance_ids = ids
         self.instance_order = instance_order
         self.size = s = cfg.size
@@ -167,10 +172,19 @@ class MaifEnv:
         self._robot_ids = np.arange(b * n, dtype=np.int64)
         self._env_base = (np.arange(b, dtype=np.int64) * p * p)[:, None]
 
-        self._pos = np.zeros((b, n, 2), dtype=np.int64)
+        # positions and goals per axis ([B, N] contiguous: reductions over robots stay cheap)
+        self._x = np.zeros((b, n), dtype=np.int64)
+        self._y = np.zeros((b, n), dtype=np.int64)
         self._cell = np.zeros((b, n), dtype=np.int64)
-        self._goal = np.zeros((b, n, 2), dtype=np.int64)
-        self._goal_off = np.zeros((b, n, 2), dtype=np.float64)
+        self._gx = np.zeros((b, n), dtype=np.int64)
+        self._gy = np.zeros((b, n), dtype=np.int64)
+        self._gox = np.zeros((b, n), dtype=np.float64)  # goal offset from the goal centroid
+        self._goy = np.zeros((b, n), dtype=np.float64)
+        self._idx_buf = np.empty((b, n, WINDOW * WINDOW), dtype=np.int64)
+        self._win_buf = np.empty((b, n, WINDOW * WINDOW), dtype=np.int8)
+        self.rewards = rw = rewards or MaifRewards()
+        # base reward by (stay, stay-on-goal): index = stay + (stay & on_goal)
+        self._base_reward = np.array([rw.move, rw.stay_off_goal, rw.stay_on_goal])
         self._goal_feat = np.zeros((b, n, 4), dtype=np.float32)
         self._dist = np.zeros((b, n), dtype=np.int64)
         self._instance = np.zeros(b, dtype=np.int64)
@@ -217,9 +231,10 @@ class MaifEnv:
         self._flat[cells] = 2
         self._occ[cells] = self._robot_ids[b * self.num_robots : (b + 1) * self.num_robots]
         self._cell[b] = cells
-        self._pos[b] = starts
-        self._goal[b] = goals
-        self._goal_off[b] = goals - goals.mean(axis=0)
+        self._x[b], self._y[b] = starts[:, 0], starts[:, 1]
+        self._gx[b], self._gy[b] = goals[:, 0], goals[:, 1]
+        goal_off = goals - goals.mean(axis=0)
+        self._gox[b], self._goy[b] = goal_off[:, 0], goal_off[:, 1]
         inv = 1.0 / (s - 1)
         self._goal_feat[b, :, 0:2] = goals * inv
         self._goal_feat[b, :, 2:4] = goals.mean(axis=0) * inv
@@ -245,14 +260,16 @@ class MaifEnv:
 
     # ------------------------------------------------------------------ stepping
     def _observe(self) -> FloatArray:
-        b, n = self.num_envs, self.num_robots
+        b, n, inv = self.num_envs, self.num_robots, self._inv
         obs = np.empty((b, n, OBS_SIZE), dtype=np.float32)
-        pos = self._pos
-        obs[:, :, 0:2] = pos * self._inv
-        obs[:, :, 2:4] = (pos.mean(axis=1) * self._inv)[:, None, :]
+        np.multiply(self._x, inv, out=obs[:, :, 0])
+        np.multiply(self._y, inv, out=obs[:, :, 1])
+        obs[:, :, 2] = (self._x.sum(axis=1) * (inv / n))[:, None]
+        obs[:, :, 3] = (self._y.sum(axis=1) * (inv / n))[:, None]
         obs[:, :, 4:8] = self._goal_feat
-        win = self._flat[self._cell[:, :, None] + self._win_off]
-        obs[:, :, COORD_FEATURES:] = win
+        np.add(self._cell[:, :, None], self._win_off, out=self._idx_buf)
+        np.take(self._flat, self._idx_buf, out=self._win_buf)
+        obs[:, :, COORD_FEATURES:] = self._win_buf
         obs[:, :, COORD_FEATURES + (WINDOW * WINDOW) // 2] = 0.0  # the observer itself
         return obs
 
@@ -271,10 +288,11 @@ class MaifEnv:
         if a.size and (a.min() < 0 or a.max() >= NUM_ACTIONS):
             raise ValueError(f"actions must be in [0, {NUM_ACTIONS}), got {a.min()}..{a.max()}")
 
+        af = a.reshape(-1)
         cur = self._cell.reshape(-1)
-        moves = self._act_off[a.reshape(-1)]
+        moves = self._act_off[af]
         blocked = self._flat[cur + moves] == 1
-        new, coll = resolve_moves(cur, moves, blocked, self._occ)
+        new, coll_flat = resolve_moves(cur, moves, blocked, self._occ)
 
         # commit the moves on the canvas and the occupancy map
         self._flat[cur] = 0
@@ -283,22 +301,27 @@ class MaifEnv:
         self._occ[new] = self._robot_ids
         moved = (new != cur).reshape(b, n)
         self._cell = new.reshape(b, n)
-        self._pos = self._pos + ACTION_DELTAS[a] * moved[:, :, None]
-        coll = coll.reshape(b, n)
+        self._x += np.where(moved, ACTION_DELTAS[a, 0], 0)
+        self._y += np.where(moved, ACTION_DELTAS[a, 1], 0)
+        coll = coll_flat.reshape(b, n)
 
         # rewards
         rw = self.rewards
-        dist = np.abs(self._pos - self._goal).sum(axis=2)
+        x, y = self._x, self._y
+        dist = np.abs(x - self._gx) + np.abs(y - self._gy)
         on_goal = dist == 0
         all_on = on_goal.all(axis=1)
         stay = a == 0
-        r = np.where(stay & on_goal, rw.stay_on_goal, np.where(stay, rw.stay_off_goal, rw.move))
+        r = self._base_reward[np.add(stay, stay & on_goal, dtype=np.intp)]
         r += rw.collision * coll
         r += rw.progress * (dist < self._dist)
-        off = self._pos - self._pos.mean(axis=1, keepdims=True)
-        ferr = np.abs(off - self._goal_off).sum(axis=2)
-        r += (np.exp(-ferr) - 0.5) * rw.formation_scale
-        r += rw.completion * all_on[:, None]
+        inv_n = 1.0 / n
+        ex = x - (x.sum(axis=1) * inv_n)[:, None] - self._gox
+        ey = y - (y.sum(axis=1) * inv_n)[:, None] - self._goy
+        ferr = np.abs(ex) + np.abs(ey)
+        r += np.exp(-ferr) * rw.formation_scale - 0.5 * rw.formation_scale
+        if all_on.any():
+            r += rw.completion * all_on[:, None]
         self._dist = dist
         team = r.sum(axis=1)
         self.robot_rewards = r.astype(np.float32)
@@ -307,7 +330,7 @@ class MaifEnv:
         self._t += 1
         self._ret += team
         self._coll += coll.sum(axis=1)
-        self._ferr += ferr.mean(axis=1)
+        self._ferr += ferr.sum(axis=1) * inv_n
         terminated = all_on
         truncated = (self._t >= self.max_steps) & ~terminated
         done = terminated | truncated
@@ -350,8 +373,8 @@ class MaifEnv:
         """A copy of env ``b``'s current world (positions, goals, obstacles, instance, step)."""
         k = int(self._instance[b])
         return MaifWorld(
-            positions=self._pos[b].copy(),
-            goals=self._goal[b].copy(),
+            positions=np.stack([self._x[b], self._y[b]], axis=1),
+            goals=np.stack([self._gx[b], self._gy[b]], axis=1),
             obstacles=self.instances.instance(k)[0].copy(),
             instance_id=k,
             step=int(self._t[b]),
@@ -360,11 +383,11 @@ class MaifEnv:
     @property
     def positions(self) -> IntArray:
         """[B, N, 2] (x, y) of every robot (a copy)."""
-        return self._pos.copy()
+        return np.stack([self._x, self._y], axis=2)
 
     @property
     def goals(self) -> IntArray:
-        return self._goal.copy()
+        return np.stack([self._gx, self._gy], axis=2)
 
     @property
     def instance_id(self) -> IntArray:

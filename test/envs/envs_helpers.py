@@ -1,0 +1,53 @@
+"""Shared helpers of the env tests: hand-built MAIF scenarios and the loop reference."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+from sdhn_sim.envs.maif import MaifEnv
+from sdhn_sim.envs.maif_instances import MaifConfig, MaifInstances
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def scenario(
+    starts: list[tuple[int, int]],
+    goals: list[tuple[int, int]],
+    obstacles: list[tuple[int, int]] = (),  # type: ignore[assignment]
+    size: int = 8,
+    **kw: object,
+) -> MaifEnv:
+    """A one-instance MAIF env on a ``size`` grid; cells are (x, y). Reset already done."""
+    n = len(starts)
+    grid = np.zeros((1, size, size), dtype=bool)
+    for x, y in obstacles:
+        grid[0, y, x] = True
+    fs = max(2, int(np.ceil(np.sqrt(n))))
+    cfg = MaifConfig(name="test", num_robots=n, size=size, fs=fs, num_maps=1, num_formations=1)
+    inst = MaifInstances(
+        cfg,
+        grid,
+        np.array(starts, dtype=np.int64).reshape(1, 1, n, 2),
+        np.array(goals, dtype=np.int64).reshape(1, 1, n, 2),
+    )
+    env = MaifEnv(inst, num_envs=1, seed=0, **kw)  # type: ignore[arg-type]
+    env.reset()
+    return env
+
+
+def bench_module() -> ModuleType:
+    """``scripts/bench_envs.py`` (holds ``LoopMaif``, the per-robot loop reference)."""
+    name = "sdhn_bench_envs"
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / "bench_envs.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod

@@ -1,0 +1,214 @@
+"""MAIF configurations and their fixed instance sets (maps x formations), pure NumPy.
+
+Axis convention (used everywhere in ``sdhn_sim.envs``): a cell is ``(x, y)`` with ``x`` the column
+(growing to the right) and ``y`` the row (growing downwards); grids are indexed ``grid[y, x]``.
+Action ``up`` is ``y - 1``, ``down`` is ``y + 1``, ``left`` is ``x - 1``, ``right`` is ``x + 1``.
+
+An instance set holds ``num_maps`` obstacle maps and ``num_formations`` formations per map;
+instance id ``k`` is map ``k // num_formations``, formation ``k % num_formations``.
+Sets for the shipped configurations live in ``sdhn_sim/data/<name>.npz`` (written by
+``scripts/make_maif_instances.py``); the others are generated on demand by the same code.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+DATA_DIR = Path(__file__).resolve().parent.parent / "data"
+
+
+@dataclass(frozen=True)
+class MaifConfig:
+    """One MAIF configuration: robots, grid size, formation square and the instance-set seed."""
+
+    name: str
+    num_robots: int
+    size: int
+    fs: int  # side of the start (top-left) and goal (bottom-right) squares
+    obstacle_density: float = 0.1
+    num_maps: int = 10
+    num_formations: int = 10
+    instance_seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.fs * self.fs < self.num_robots:
+            raise ValueError(f"{self.name}: fs={self.fs} square has fewer cells than num_robots")
+        if 2 * self.fs > self.size:
+            raise ValueError(f"{self.name}: start and goal squares (fs={self.fs}) overlap")
+
+    @property
+    def num_instances(self) -> int:
+        return self.num_maps * self.num_formations
+
+
+def _cfg(name: str, n: int, size: int, fs: int, seed: int) -> MaifConfig:
+    return MaifConfig(name=name, num_robots=n, size=size, fs=fs, instance_seed=seed)
+
+
+# maif-10/16/20 come from the spec. The sequence continues with fs += 2 and size += 16 per step
+# (about 5-6 cells of formation square per robot): 30 robots -> 80x80, fs 13; 40 -> 96x96, fs 15.
+MAIF_CONFIGS: dict[str, MaifConfig] = {
+    c.name: c
+    for c in (
+        _cfg("maif-tiny", 4, 12, 4, 1004),
+        _cfg("maif-10", 10, 32, 7, 1010),
+        _cfg("maif-16", 16, 48, 9, 1016),
+        _cfg("maif-20", 20, 64, 11, 1020),
+        _cfg("maif-30", 30, 80, 13, 1030),
+        _cfg("maif-40", 40, 96, 15, 1040),
+    )
+}
+SHIPPED = ("maif-tiny", "maif-10", "maif-16", "maif-20")
+
+
+@dataclass(frozen=True)
+class MaifInstances:
+    """A fixed instance set. Coordinates are ``(x, y)`` (see the module docstring)."""
+
+    config: MaifConfig
+    obstacles: npt.NDArray[np.bool_]  # [M, size, size], indexed [map, y, x]
+    starts: npt.NDArray[np.int64]  # [M, F, N, 2]
+    goals: npt.NDArray[np.int64]  # [M, F, N, 2]
+
+    @property
+    def num_instances(self) -> int:
+        return int(self.starts.shape[0] * self.starts.shape[1])
+
+    def instance(
+        self, k: int
+    ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """(obstacles [size, size], starts [N, 2], goals [N, 2]) of instance id ``k``."""
+        m, f = divmod(int(k), self.starts.shape[1])
+        return self.obstacles[m], self.starts[m, f], self.goals[m, f]
+
+
+def reachable_from(free: npt.NDArray[np.bool_], x: int, y: int) -> npt.NDArray[np.bool_]:
+    """Cells reachable from ``(x, y)`` by 4-connected moves over ``free`` (BFS by dilation)."""
+    reach = np.zeros_like(free)
+    if not free[y, x]:
+        return reach
+    reach[y, x] = True
+    while True:
+        grown = reach.copy()
+        grown[1:, :] |= reach[:-1, :]
+        grown[:-1, :] |= reach[1:, :]
+        grown[:, 1:] |= reach[:, :-1]
+        grown[:, :-1] |= reach[:, 1:]
+        grown &= free
+        if np.array_equal(grown, reach):
+            return reach
+        reach = grown
+
+
+def _draw_map(cfg: MaifConfig, rng: np.random.Generator) -> npt.NDArray[np.bool_]:
+    s, fs = cfg.size, cfg.fs
+    allowed = np.ones((s, s), dtype=bool)
+    allowed[:fs, :fs] = False
+    allowed[s - fs :, s - fs :] = False
+    cells = np.flatnonzero(allowed)
+    count = round(cfg.obstacle_density * s * s)
+    chosen = rng.choice(cells, size=count, replace=False)
+    obstacles = np.zeros(s * s, dtype=bool)
+    obstacles[chosen] = True
+    return obstacles.reshape(s, s)
+
+
+def _draw_formation(
+    cfg: MaifConfig, rng: np.random.Generator
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    fs, shift = cfg.fs, cfg.size - cfg.fs
+    flat = rng.choice(fs * fs, size=cfg.num_robots, replace=False)
+    starts = np.stack([flat % fs, flat // fs], axis=1).astype(np.int64)  # (x, y)
+    return starts, starts + shift
+
+
+def generate_instances(cfg: MaifConfig) -> MaifInstances:
+    """Deterministic instance set of ``cfg`` from ``cfg.instance_seed``.
+
+    A map is redrawn (together with its formations) until every goal of every formation is
+    reachable from its start (4-connected BFS): the **fixed** item of the spec.
+    """
+    rng = np.random.default_rng(cfg.instance_seed)
+    n, m_count, f_count = cfg.num_robots, cfg.num_maps, cfg.num_formations
+    obstacles = np.zeros((m_count, cfg.size, cfg.size), dtype=bool)
+    starts = np.zeros((m_count, f_count, n, 2), dtype=np.int64)
+    goals = np.zeros_like(starts)
+    for m in range(m_count):
+        while True:
+            grid = _draw_map(cfg, rng)
+            forms = [_draw_formation(cfg, rng) for _ in range(f_count)]
+            if all(_all_reachable(grid, st, gl) for st, gl in forms):
+                break
+        obstacles[m] = grid
+        for f, (st, gl) in enumerate(forms):
+            starts[m, f], goals[m, f] = st, gl
+    return MaifInstances(cfg, obstacles, starts, goals)
+
+
+def _all_reachable(
+    obstacles: npt.NDArray[np.bool_], starts: npt.NDArray[np.int64], goals: npt.NDArray[np.int64]
+) -> bool:
+    free = ~obstacles
+    cache: dict[int, npt.NDArray[np.bool_]] = {}
+    labels = np.full(obstacles.shape, -1, dtype=np.int64)
+    for (sx, sy), (gx, gy) in zip(starts.tolist(), goals.tolist(), strict=True):
+        lab = int(labels[sy, sx])
+        if lab < 0:
+            lab = len(cache)
+            cache[lab] = reachable_from(free, sx, sy)
+            labels[cache[lab]] = lab
+        if not cache[lab][gy, gx]:
+            return False
+    return True
+
+
+def data_path(name: str) -> Path:
+    return DATA_DIR / f"{name}.npz"
+
+
+def save_instances(inst: MaifInstances, path: Path) -> None:
+    c = inst.config
+    np.savez_compressed(
+        path,
+        obstacles=np.packbits(inst.obstacles, axis=-1),
+        starts=inst.starts.astype(np.int16),
+        goals=inst.goals.astype(np.int16),
+        meta=np.array(
+            [c.num_robots, c.size, c.fs, c.num_maps, c.num_formations, c.instance_seed],
+            dtype=np.int64,
+        ),
+        density=np.array(c.obstacle_density),
+    )
+
+
+def _load_file(cfg: MaifConfig, path: Path) -> MaifInstances:
+    with np.load(path, allow_pickle=False) as z:
+        meta = z["meta"].tolist()
+        want = [cfg.num_robots, cfg.size, cfg.fs, cfg.num_maps, cfg.num_formations,
+                cfg.instance_seed]
+        if meta != want or float(z["density"]) != cfg.obstacle_density:
+            raise ValueError(f"{path}: stored parameters {meta} do not match config {want}")
+        obstacles = np.unpackbits(z["obstacles"], axis=-1, count=cfg.size).astype(bool)
+        starts = z["starts"].astype(np.int64)
+        goals = z["goals"].astype(np.int64)
+    return MaifInstances(cfg, obstacles, starts, goals)
+
+
+@functools.lru_cache(maxsize=16)
+def load_instances(name_or_cfg: str | MaifConfig) -> MaifInstances:
+    """The instance set of a configuration: from its data file if shipped, else generated."""
+    if isinstance(name_or_cfg, str):
+        if name_or_cfg not in MAIF_CONFIGS:
+            raise ValueError(f"unknown MAIF config {name_or_cfg!r}; known: {sorted(MAIF_CONFIGS)}")
+        cfg = MAIF_CONFIGS[name_or_cfg]
+    else:
+        cfg = name_or_cfg
+    path = data_path(cfg.name)
+    if MAIF_CONFIGS.get(cfg.name) == cfg and path.exists():
+        return _load_file(cfg, path)
+    return generate_instances(cfg)

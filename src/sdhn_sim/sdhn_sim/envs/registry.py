@@ -1,0 +1,52 @@
+"""Named environments: ``make_env(name, num_envs, seed, **overrides) -> BatchedEnv``.
+
+MAIF: ``maif-tiny`` (4 robots, 12x12, fs 4), ``maif-10`` (32, fs 7), ``maif-16`` (48, fs 9),
+``maif-20`` (64, fs 11), ``maif-30`` (80, fs 13), ``maif-40`` (96, fs 15).
+Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100)),
+``instance_order`` ("random" | "round_robin").
+
+RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``.
+Overrides: ``max_steps``, ``size`` ("tiny" | "small" | "medium" | "large"),
+``difficulty`` ("easy" | "normal" | "hard").
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .api import BatchedEnv
+from .maif import MaifEnv
+from .maif_instances import MAIF_CONFIGS
+from .rware_env import RwareEnv
+from .single import SingleEnv
+
+MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order")
+RWARE_OVERRIDES = ("max_steps", "size", "difficulty")
+RWARE_TASKS = {"rware-3": 3, "rware-6": 6, "rware-9": 9}
+
+
+def env_names() -> list[str]:
+    """Every name ``make_env`` accepts."""
+    return [*MAIF_CONFIGS, *RWARE_TASKS]
+
+
+def _check_overrides(name: str, overrides: dict[str, Any], allowed: tuple[str, ...]) -> None:
+    for key in overrides:
+        if key not in allowed:
+            raise ValueError(f"{name}: unknown override {key!r}; allowed: {list(allowed)}")
+
+
+def make_env(name: str, num_envs: int = 1, seed: int = 0, **overrides: Any) -> BatchedEnv:
+    """A batched environment by name (see ``env_names()``)."""
+    if name in MAIF_CONFIGS:
+        _check_overrides(name, overrides, MAIF_OVERRIDES)
+        return MaifEnv(MAIF_CONFIGS[name], num_envs=num_envs, seed=seed, name=name, **overrides)
+    if name in RWARE_TASKS:
+        _check_overrides(name, overrides, RWARE_OVERRIDES)
+        return RwareEnv(RWARE_TASKS[name], num_envs=num_envs, seed=seed, name=name, **overrides)
+    raise ValueError(f"unknown environment {name!r}; known: {env_names()}")
+
+
+def make_single_env(name: str, seed: int = 0, **overrides: Any) -> SingleEnv:
+    """A single-environment view (for the simulator node and Gymnasium-style loops)."""
+    return SingleEnv(make_env(name, num_envs=1, seed=seed, **overrides))

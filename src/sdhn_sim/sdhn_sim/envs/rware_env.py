@@ -1,0 +1,172 @@
+"""RWARE adapter: B copies of the real ``rware`` 2.0.0 Gymnasium env behind the batched API.
+
+Tasks (choice documented in the README of envs, ``__init__``): ``rware-N`` is rware's registered
+``rware-small-{N}ag-v2`` — 2 shelf rows x 3 shelf columns, column height 8 (a 20 x 10 grid),
+sensor range 1, request queue N ("normal" difficulty), individual rewards, 500 steps. The SDHN
+authors' config uses ``rware:rware-small-3ag-v2`` with a 500-step limit; 6 and 9 robots keep the
+same warehouse. Size and difficulty are overridable.
+
+rware 2.0.0 reports the 500-step limit as ``terminated=True, truncated=False``; the adapter
+reports it as what it is, a truncation (``terminated=False, truncated=True``), so learners
+bootstrap. RWARE has no success notion: ``EpisodeStats.makespan`` is None, ``success`` False,
+``collisions`` 0 and ``formation_error`` 0.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from .api import EpisodeStats, FloatArray, StepResult
+
+RWARE_SIZES = ("tiny", "small", "medium", "large")
+RWARE_DIFFICULTIES = {"easy": "-easy", "normal": "", "hard": "-hard"}
+NUM_ACTIONS = 5  # noop, forward, left, right, toggle_load
+
+
+def rware_env_id(num_robots: int, size: str = "small", difficulty: str = "normal") -> str:
+    if size not in RWARE_SIZES:
+        raise ValueError(f"size must be one of {list(RWARE_SIZES)}, got {size!r}")
+    if difficulty not in RWARE_DIFFICULTIES:
+        raise ValueError(
+            f"difficulty must be one of {list(RWARE_DIFFICULTIES)}, got {difficulty!r}"
+        )
+    if not 1 <= int(num_robots) <= 19:
+        raise ValueError(f"num_robots must be in [1, 19] (rware registers 1..19), got {num_robots}")
+    return f"rware-{size}-{int(num_robots)}ag{RWARE_DIFFICULTIES[difficulty]}-v2"
+
+
+def make_rware_gym(env_id: str, max_steps: int) -> Any:
+    """The raw gymnasium env as rware registers it (``gym.make``), with our step limit."""
+    import gymnasium as gym
+    import rware  # noqa: F401  (registers the rware-* ids)
+
+    return gym.make(env_id, max_steps=max_steps)
+
+
+class RwareEnv:
+    """B rware environments stepped in a loop (implements ``BatchedEnv``).
+
+    Copy ``b`` of a batch seeded ``s`` is first reset with seed ``s + b``; its later episodes
+    continue that generator (``reset(seed=None)``), exactly as a raw rware loop would.
+    """
+
+    num_actions = NUM_ACTIONS
+
+    def __init__(
+        self,
+        num_robots: int,
+        num_envs: int = 1,
+        seed: int = 0,
+        *,
+        size: str = "small",
+        difficulty: str = "normal",
+        max_steps: int = 500,
+        name: str | None = None,
+    ) -> None:
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        if int(max_steps) < 1:
+            raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}")
+        if int(seed) < 0:
+            raise ValueError(f"seed must be >= 0, got {seed}")
+        self.env_id = rware_env_id(num_robots, size, difficulty)
+        self.name = name or self.env_id
+        self.num_envs = int(num_envs)
+        self.num_robots = int(num_robots)
+        self.max_steps = int(max_steps)
+        self._envs = [make_rware_gym(self.env_id, self.max_steps) for _ in range(self.num_envs)]
+        # step the Warehouse itself: the gymnasium wrappers only add per-step checks
+        self._raw = [e.unwrapped for e in self._envs]
+        space = self._envs[0].observation_space
+        self.obs_size = int(space[0].shape[0])
+        self.state_size = self.num_robots * self.obs_size
+        self._seed = int(seed)
+        self._pending_seed: list[int | None] = [self._seed + b for b in range(self.num_envs)]
+        self._t = np.zeros(self.num_envs, dtype=np.int64)
+        self._ret = np.zeros(self.num_envs, dtype=np.float64)
+        self._started = False
+        self.robot_rewards: FloatArray = np.zeros((self.num_envs, self.num_robots), np.float32)
+
+    def _reset_one(self, b: int) -> tuple[npt.NDArray[np.float32], ...]:
+        seed = self._pending_seed[b]
+        self._pending_seed[b] = None
+        obs, _ = self._raw[b].reset(seed=seed)
+        self._t[b] = 0
+        self._ret[b] = 0.0
+        return tuple(obs)
+
+    def reset(self, seed: int | None = None) -> tuple[FloatArray, FloatArray]:
+        if seed is not None:
+            if int(seed) < 0:
+                raise ValueError(f"seed must be >= 0, got {seed}")
+            self._seed = int(seed)
+            self._pending_seed = [self._seed + b for b in range(self.num_envs)]
+        obs = np.empty((self.num_envs, self.num_robots, self.obs_size), dtype=np.float32)
+        for b in range(self.num_envs):
+            obs[b] = self._reset_one(b)
+        self._started = True
+        return obs, obs.reshape(self.num_envs, -1)
+
+    def step(self, actions: npt.ArrayLike) -> StepResult:
+        if not self._started:
+            raise RuntimeError("call reset() before step()")
+        bn = (self.num_envs, self.num_robots)
+        a = np.asarray(actions)
+        if a.shape != bn:
+            raise ValueError(f"actions must have shape {bn}, got {a.shape}")
+        if a.dtype.kind not in "iu":
+            raise ValueError(f"actions must be integers in [0, {NUM_ACTIONS}), got {a.dtype}")
+        if a.min() < 0 or a.max() >= NUM_ACTIONS:
+            raise ValueError(f"actions must be in [0, {NUM_ACTIONS}), got {a.min()}..{a.max()}")
+        acts = a.tolist()
+        obs = np.empty((*bn, self.obs_size), dtype=np.float32)
+        rew = np.empty(bn, dtype=np.float64)
+        term = np.zeros(self.num_envs, dtype=bool)
+        trunc = np.zeros(self.num_envs, dtype=bool)
+        for b, env in enumerate(self._raw):
+            o, r, te, tr, _ = env.step(acts[b])
+            obs[b] = o
+            rew[b] = r
+            time_up = env._cur_steps >= self.max_steps
+            trunc[b] = bool(tr) or (bool(te) and time_up)
+            term[b] = bool(te) and not time_up
+        self._t += 1
+        team = rew.sum(axis=1)
+        self._ret += team
+        self.robot_rewards = rew.astype(np.float32)
+        final_obs = obs
+        episodes: list[EpisodeStats] = []
+        done = term | trunc
+        if done.any():
+            final_obs = obs.copy()
+            for b in np.flatnonzero(done).tolist():
+                episodes.append(
+                    EpisodeStats(
+                        env_index=b,
+                        episode_return=float(self._ret[b]),
+                        length=int(self._t[b]),
+                        makespan=None,
+                        success=False,
+                        collisions=0,
+                        formation_error=0.0,
+                    )
+                )
+                obs[b] = self._reset_one(b)
+        n = self.num_envs
+        return StepResult(
+            obs=obs,
+            state=obs.reshape(n, -1),
+            reward=team.astype(np.float32),
+            terminated=term,
+            truncated=trunc,
+            final_obs=final_obs,
+            final_state=final_obs.reshape(n, -1),
+            episodes=episodes,
+        )
+
+    def close(self) -> None:
+        for e in self._envs:
+            e.close()

@@ -53,12 +53,26 @@ class HypergraphGenerator(nn.Module):
         return logits.reshape(t_len, b, self.num_robots, self.num_hyperedges), torch.stack(hs)
 
 
+class _StraightThroughStep(torch.autograd.Function):
+    """Forward 1{y >= 0.5} (exactly 0/1, unlike ``hard + y - y.detach()`` which rounds to
+    0.99999994); backward passes the gradient of y through unchanged."""
+
+    @staticmethod
+    def forward(ctx: object, y: Tensor) -> Tensor:
+        return (y >= 0.5).to(y.dtype)
+
+    @staticmethod
+    def backward(ctx: object, grad: Tensor) -> Tensor:
+        return grad
+
+
 def binary_concrete(logits: Tensor, tau: float, noise: Noise = "logistic",
                     stochastic: bool = True) -> tuple[Tensor, Tensor]:
     """Binary Concrete relaxation with a straight-through hard sample (unlabelled eq. for y).
 
     y = sigmoid((log p - log(1-p) + eps) / tau) with log p - log(1-p) = ``logits``;
-    H = 1{y >= 0.5} forward, gradient of y backward (``H_hard + y - y.detach()``).
+    H = 1{y >= 0.5} forward, gradient of y backward (straight-through, as ``H_hard + y -
+    y.detach()`` but exactly 0/1).
     ``noise="logistic"``: eps = log u - log(1-u), which gives P(H=1) = p exactly (spec decision).
     ``noise="gumbel_paper"``: eps = log(-log u), the paper's single-Gumbel form.
     ``stochastic=False`` (ablation "w/o SHR"): eps = 0, i.e. H = 1{P_H >= 0.5}.
@@ -75,8 +89,7 @@ def binary_concrete(logits: Tensor, tau: float, noise: Noise = "logistic",
         y = torch.sigmoid((logits + eps) / tau)
     else:
         y = torch.sigmoid(logits / tau)
-    hard = (y >= 0.5).to(y.dtype)
-    return hard + y - y.detach(), y
+    return _StraightThroughStep.apply(y), y
 
 
 def safe_inverse_power(deg: Tensor, power: float) -> Tensor:

@@ -15,8 +15,8 @@ from sdhn_train.trainer import Trainer
 
 
 def short_episodes(name: str, num_envs: int, seed: int) -> BatchedEnv:
-    """20-step episodes, so rollouts cross episode ends (hidden resets, next instances)."""
-    return make_env(name, num_envs=num_envs, seed=seed, max_steps=20)
+    """12-step episodes, so rollouts cross episode ends (hidden resets, next instances)."""
+    return make_env(name, num_envs=num_envs, seed=seed, max_steps=12)
 
 
 def _cfg(algo: str, root: Path) -> Config:

@@ -1,0 +1,131 @@
+"""Torch-free actor inference: MLP encoder -> GRU cell -> categorical logits, in NumPy.
+
+This module runs inside every actor process and must never import torch. It computes exactly what
+``sdhn_policy.actor_torch.Actor`` computes (tested to 1e-5)::
+
+    rt = ActorRuntime.from_bytes(msg.format, msg.version, msg.payload, msg.sha256)
+    h = rt.initial_state(1)
+    action, log_prob, h = rt.act(obs[None], h, greedy=False, rng=rng, robot_id=i)
+
+Shapes: ``obs`` [X, D] (X = any batch of robots), ``hidden`` [X, H]; ``robot_id`` an int or [X]
+ints, required when the actor was trained with a one-hot robot id.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import numpy.typing as npt
+
+from sdhn_policy.weights import (
+    ActorSpec,
+    ActorWeights,
+    Tensors,
+    decode_actor,
+    load_actor_file,
+)
+
+F32 = npt.NDArray[np.float32]
+
+
+def _sigmoid(x: F32) -> F32:
+    return np.asarray(0.5 * (1.0 + np.tanh(0.5 * x)), dtype=np.float32)
+
+
+def log_softmax(logits: F32) -> F32:
+    z = logits - logits.max(axis=-1, keepdims=True)
+    return np.asarray(z - np.log(np.exp(z).sum(axis=-1, keepdims=True)), dtype=np.float32)
+
+
+class ActorRuntime:
+    """The shared actor's forward pass on NumPy arrays; immutable once built."""
+
+    def __init__(self, spec: ActorSpec, tensors: Tensors, version: int = 0) -> None:
+        self.spec = spec
+        self.version = version
+        self._enc = [
+            (tensors[f"encoder.{k}.weight"].T.copy(), tensors[f"encoder.{k}.bias"])
+            for k in range(len(spec.hidden_sizes))
+        ]
+        self._w_ih = tensors["gru.weight_ih"].T.copy()  # [in, 3H], gate order r, z, n
+        self._w_hh = tensors["gru.weight_hh"].T.copy()  # [H, 3H]
+        self._b_ih = tensors["gru.bias_ih"]
+        self._b_hh = tensors["gru.bias_hh"]
+        self._w_out = tensors["head.weight"].T.copy()
+        self._b_out = tensors["head.bias"]
+
+    @classmethod
+    def from_bytes(cls, fmt: str, version: int, payload: bytes, sha256: str) -> ActorRuntime:
+        """Build from the fields of a ``PolicyWeights`` message (validated; WeightsError if bad)."""
+        spec, tensors = decode_actor(fmt, version, payload, sha256)
+        return cls(spec, tensors, version)
+
+    @classmethod
+    def from_weights(cls, blob: ActorWeights) -> ActorRuntime:
+        return cls.from_bytes(blob.format, blob.version, blob.payload, blob.sha256)
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike[str]) -> ActorRuntime:
+        return cls.from_weights(load_actor_file(path))
+
+    @property
+    def hidden_size(self) -> int:
+        return self.spec.gru_hidden
+
+    def initial_state(self, n: int) -> F32:
+        """Hidden state at the start of an episode for ``n`` robots: zeros [n, H]."""
+        return np.zeros((n, self.spec.gru_hidden), dtype=np.float32)
+
+    def _input(self, obs: npt.ArrayLike, robot_id: int | npt.ArrayLike | None) -> F32:
+        x = np.asarray(obs, dtype=np.float32)
+        if x.ndim != 2 or x.shape[1] != self.spec.obs_size:
+            raise ValueError(f"obs must be [X, {self.spec.obs_size}], got {x.shape}")
+        if not self.spec.use_robot_id:
+            return x
+        if robot_id is None:
+            raise ValueError("this actor was trained with a one-hot robot id: pass robot_id")
+        ids = np.broadcast_to(np.asarray(robot_id, dtype=np.int64), (x.shape[0],))
+        if np.any(ids < 0) or np.any(ids >= self.spec.num_robots):
+            raise ValueError(f"robot_id out of range [0, {self.spec.num_robots})")
+        onehot = np.zeros((x.shape[0], self.spec.num_robots), dtype=np.float32)
+        onehot[np.arange(x.shape[0]), ids] = 1.0
+        return np.concatenate([x, onehot], axis=1)
+
+    def step(
+        self, obs: npt.ArrayLike, hidden: npt.ArrayLike, robot_id: int | npt.ArrayLike | None = None
+    ) -> tuple[F32, F32]:
+        """One step: returns (logits [X, A], next hidden [X, H])."""
+        x = self._input(obs, robot_id)
+        h = np.asarray(hidden, dtype=np.float32)
+        for w, b in self._enc:
+            x = np.maximum(x @ w + b, 0.0)
+        gi = x @ self._w_ih + self._b_ih
+        gh = h @ self._w_hh + self._b_hh
+        g = self.spec.gru_hidden
+        r = _sigmoid(gi[:, :g] + gh[:, :g])
+        z = _sigmoid(gi[:, g : 2 * g] + gh[:, g : 2 * g])
+        n = np.tanh(gi[:, 2 * g :] + r * gh[:, 2 * g :])
+        h_next = np.asarray((1.0 - z) * n + z * h, dtype=np.float32)
+        logits = np.asarray(h_next @ self._w_out + self._b_out, dtype=np.float32)
+        return logits, h_next
+
+    def act(
+        self,
+        obs: npt.ArrayLike,
+        hidden: npt.ArrayLike,
+        greedy: bool,
+        rng: np.random.Generator,
+        robot_id: int | npt.ArrayLike | None = None,
+    ) -> tuple[npt.NDArray[np.int64], F32, F32]:
+        """Pick actions: returns (action [X], log-prob of it [X], next hidden [X, H])."""
+        logits, h_next = self.step(obs, hidden, robot_id)
+        logp = log_softmax(logits)
+        if greedy:
+            action = logp.argmax(axis=-1)
+        else:  # inverse-CDF sampling, one uniform per robot
+            cdf = np.cumsum(np.exp(logp.astype(np.float64)), axis=-1)
+            u = rng.random(len(cdf))[:, None] * cdf[:, -1:]
+            action = np.minimum((cdf < u).sum(axis=-1), logits.shape[1] - 1)
+        action = action.astype(np.int64)
+        return action, logp[np.arange(len(action)), action], h_next

@@ -1,0 +1,252 @@
+"""Actor weights: one safetensors blob with metadata, as bytes (ROS message) or files (disk).
+
+NumPy + safetensors only, so actor processes can load weights without torch. Nothing here ever
+unpickles. Every loader validates format, sha256, tensor names, shapes, dtypes and finiteness
+*before* returning, and raises :class:`WeightsError` with the reason otherwise.
+
+Bytes form (fields of the ROS ``sdhn_msgs/PolicyWeights`` message)::
+
+    blob = encode_actor(spec, tensors, version=3)   # ActorWeights(format, version, payload, sha256)
+    spec, tensors = decode_actor(blob.format, blob.version, blob.payload, blob.sha256)
+
+File form: ``<stem>.safetensors`` (the payload) plus ``<stem>.json`` (format, version, sha256, spec),
+both written atomically (temp file, fsync, rename)::
+
+    save_actor_file("actor.safetensors", blob); blob = load_actor_file("actor.safetensors")
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from safetensors.numpy import load as st_load
+from safetensors.numpy import save as st_save
+
+ACTOR_FORMAT = "sdhn-actor/1"
+"""Format string of the actor blob; bump the number on any incompatible change."""
+
+Tensors = dict[str, npt.NDArray[np.float32]]
+
+
+class WeightsError(ValueError):
+    """A weights payload or file was rejected; ``reason`` says why."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class ActorSpec:
+    """Shape of the shared actor network (everything needed to rebuild it)."""
+
+    obs_size: int  # D: length of one robot's local observation
+    num_actions: int  # A: size of the categorical policy
+    hidden_sizes: tuple[int, ...] = (64,)  # MLP encoder widths (ReLU after each layer)
+    gru_hidden: int = 64  # GRU hidden size
+    use_robot_id: bool = False  # append a one-hot robot id of length num_robots to the obs
+    num_robots: int = 0  # N (only used for the one-hot id)
+
+    @property
+    def input_size(self) -> int:
+        return self.obs_size + (self.num_robots if self.use_robot_id else 0)
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["hidden_sizes"] = list(self.hidden_sizes)
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> ActorSpec:
+        try:
+            spec = cls(
+                obs_size=int(d["obs_size"]),
+                num_actions=int(d["num_actions"]),
+                hidden_sizes=tuple(int(x) for x in d["hidden_sizes"]),
+                gru_hidden=int(d["gru_hidden"]),
+                use_robot_id=bool(d["use_robot_id"]),
+                num_robots=int(d["num_robots"]),
+            )
+        except (KeyError, TypeError, ValueError) as e:
+            raise WeightsError(f"actor spec metadata is malformed: {e!r}") from e
+        spec.check()
+        return spec
+
+    def check(self) -> None:
+        if self.obs_size < 1 or self.num_actions < 1 or self.gru_hidden < 1:
+            raise WeightsError(f"actor spec has a non-positive size: {self}")
+        if any(h < 1 for h in self.hidden_sizes):
+            raise WeightsError(f"actor spec has a non-positive hidden width: {self}")
+        if self.use_robot_id and self.num_robots < 1:
+            raise WeightsError("actor spec uses a robot id but num_robots < 1")
+
+    def tensor_shapes(self) -> dict[str, tuple[int, ...]]:
+        """The exact tensor names and shapes of an actor with this spec."""
+        shapes: dict[str, tuple[int, ...]] = {}
+        width = self.input_size
+        for k, h in enumerate(self.hidden_sizes):
+            shapes[f"encoder.{k}.weight"] = (h, width)
+            shapes[f"encoder.{k}.bias"] = (h,)
+            width = h
+        g = self.gru_hidden
+        shapes["gru.weight_ih"] = (3 * g, width)
+        shapes["gru.weight_hh"] = (3 * g, g)
+        shapes["gru.bias_ih"] = (3 * g,)
+        shapes["gru.bias_hh"] = (3 * g,)
+        shapes["head.weight"] = (self.num_actions, g)
+        shapes["head.bias"] = (self.num_actions,)
+        return shapes
+
+
+@dataclass(frozen=True)
+class ActorWeights:
+    """The bytes form, field for field the ROS ``PolicyWeights`` message."""
+
+    format: str
+    version: int
+    payload: bytes
+    sha256: str
+
+
+def sha256_hex(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def validate_tensors(spec: ActorSpec, tensors: dict[str, np.ndarray]) -> Tensors:
+    """Check names, shapes, dtype and finiteness against ``spec``; return float32 arrays."""
+    expected = spec.tensor_shapes()
+    missing = sorted(set(expected) - set(tensors))
+    extra = sorted(set(tensors) - set(expected))
+    if missing or extra:
+        raise WeightsError(f"tensor names do not match the spec: missing {missing}, unexpected {extra}")
+    out: Tensors = {}
+    for name, shape in expected.items():
+        a = tensors[name]
+        if tuple(a.shape) != shape:
+            raise WeightsError(f"tensor {name!r} has shape {tuple(a.shape)}, expected {shape}")
+        if a.dtype != np.float32:
+            raise WeightsError(f"tensor {name!r} has dtype {a.dtype}, expected float32")
+        if not np.all(np.isfinite(a)):
+            raise WeightsError(f"tensor {name!r} contains NaN or inf")
+        out[name] = a
+    return out
+
+
+def encode_actor(spec: ActorSpec, tensors: dict[str, np.ndarray], version: int) -> ActorWeights:
+    """Serialise an actor (validated first) into the bytes form."""
+    spec.check()
+    arrays = validate_tensors(
+        spec, {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in tensors.items()}
+    )
+    metadata = {
+        "format": ACTOR_FORMAT,
+        "version": str(int(version)),
+        "spec": json.dumps(spec.to_json(), sort_keys=True),
+    }
+    payload = st_save(arrays, metadata=metadata)
+    return ActorWeights(ACTOR_FORMAT, int(version), payload, sha256_hex(payload))
+
+
+def _read_metadata(payload: bytes) -> dict[str, str]:
+    """The ``__metadata__`` of a safetensors payload, parsed without loading any tensor."""
+    if len(payload) < 8:
+        raise WeightsError("payload is too short to be a safetensors blob")
+    n = int.from_bytes(payload[:8], "little")
+    if n <= 0 or 8 + n > len(payload):
+        raise WeightsError("payload header length is out of range")
+    try:
+        header = json.loads(payload[8 : 8 + n])
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise WeightsError(f"payload header is not JSON: {e}") from e
+    meta = header.get("__metadata__") if isinstance(header, dict) else None
+    if not isinstance(meta, dict):
+        raise WeightsError("payload has no metadata (is it an sdhn actor blob?)")
+    return {str(k): str(v) for k, v in meta.items()}
+
+
+def decode_actor(fmt: str, version: int, payload: bytes, sha256: str) -> tuple[ActorSpec, Tensors]:
+    """Validate the bytes form and return (spec, tensors). Raises WeightsError on any mismatch."""
+    if fmt != ACTOR_FORMAT:
+        raise WeightsError(f"unknown weights format {fmt!r}; this runtime reads {ACTOR_FORMAT!r}")
+    payload = bytes(payload)
+    actual = sha256_hex(payload)
+    if actual != sha256.lower():
+        raise WeightsError(f"sha256 mismatch: message says {sha256}, payload hashes to {actual}")
+    meta = _read_metadata(payload)
+    if meta.get("format") != ACTOR_FORMAT:
+        raise WeightsError(f"payload metadata format is {meta.get('format')!r}, not {ACTOR_FORMAT!r}")
+    if meta.get("version") != str(int(version)):
+        raise WeightsError(f"payload version {meta.get('version')} != message version {version}")
+    try:
+        spec = ActorSpec.from_json(json.loads(meta["spec"]))
+    except (KeyError, json.JSONDecodeError) as e:
+        raise WeightsError(f"payload metadata has no valid spec: {e!r}") from e
+    try:
+        tensors = st_load(payload)
+    except Exception as e:  # safetensors raises its own error type for corrupt blobs
+        raise WeightsError(f"payload is not a valid safetensors blob: {e}") from e
+    return spec, validate_tensors(spec, tensors)
+
+
+def decode_weights(blob: ActorWeights) -> tuple[ActorSpec, Tensors]:
+    return decode_actor(blob.format, blob.version, blob.payload, blob.sha256)
+
+
+# --- files -----------------------------------------------------------------------------------
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temp file in the same directory, fsync, then rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def sidecar_path(path: str | os.PathLike[str]) -> Path:
+    return Path(path).with_suffix(".json")
+
+
+def save_actor_file(path: str | os.PathLike[str], blob: ActorWeights) -> None:
+    """Write ``<stem>.safetensors`` and its ``<stem>.json`` sidecar atomically."""
+    spec, _ = decode_weights(blob)  # never write something we could not read back
+    atomic_write_bytes(path, blob.payload)
+    side = {"format": blob.format, "version": blob.version, "sha256": blob.sha256,
+            "spec": spec.to_json()}
+    atomic_write_bytes(sidecar_path(path), json.dumps(side, indent=2).encode() + b"\n")
+
+
+def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
+    """Read and validate a weights file written by :func:`save_actor_file`."""
+    path = Path(path)
+    try:
+        side = json.loads(sidecar_path(path).read_text())
+        blob = ActorWeights(str(side["format"]), int(side["version"]), path.read_bytes(),
+                            str(side["sha256"]))
+    except FileNotFoundError as e:
+        raise WeightsError(f"missing weights file: {e.filename}") from e
+    except (KeyError, TypeError, ValueError) as e:
+        raise WeightsError(f"weights sidecar {sidecar_path(path)} is malformed: {e!r}") from e
+    decode_weights(blob)
+    return blob

@@ -1,0 +1,137 @@
+"""Checkpoints: one safetensors file (every tensor) + one JSON file (everything else), atomic.
+
+Holds actor, critic, target critic, both Adam states, torch/NumPy RNG states, the collector's
+live state (current obs, hidden states) and a snapshot of the environments, so a resumed run
+continues exactly like an uninterrupted one. Never pickles.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from safetensors.numpy import load as st_load
+from safetensors.numpy import save as st_save
+
+from sdhn_policy.weights import atomic_write_bytes, sha256_hex
+
+CHECKPOINT_FORMAT = "sdhn-checkpoint/1"
+
+
+class CheckpointError(ValueError):
+    pass
+
+
+# --- environment snapshots --------------------------------------------------------------------
+
+
+def env_snapshot(env: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Snapshot a NumPy environment: ``env.state_dict()`` if it has one, else its NumPy arrays,
+    scalars and random generators (attributes of other types are static configuration or
+    per-step scratch and are not saved). Returns (arrays, JSON-able values)."""
+    if hasattr(env, "state_dict"):
+        arrays = dict(env.state_dict())
+        return arrays, {}
+    arrays: dict[str, np.ndarray] = {}
+    values: dict[str, Any] = {}
+    for k, v in vars(env).items():
+        if isinstance(v, np.ndarray) and v.dtype != object:
+            arrays[k] = v
+        elif isinstance(v, bool | int | float | str) or v is None:
+            values[k] = v
+        elif isinstance(v, np.random.Generator):
+            values[k] = {"__rng__": v.bit_generator.state}
+        elif isinstance(v, list) and v and all(isinstance(g, np.random.Generator) for g in v):
+            values[k] = {"__rngs__": [g.bit_generator.state for g in v]}
+    return arrays, values
+
+
+def env_restore(env: Any, arrays: dict[str, np.ndarray], values: dict[str, Any]) -> None:
+    if hasattr(env, "load_state_dict"):
+        env.load_state_dict(arrays)
+        return
+    for k, a in arrays.items():
+        cur = getattr(env, k)
+        if cur.shape != a.shape:
+            raise CheckpointError(f"env.{k}: checkpoint shape {a.shape} != env shape {cur.shape}")
+        cur[...] = a  # in place: other attributes may be views of this array
+    for k, v in values.items():
+        if isinstance(v, dict) and "__rng__" in v:
+            getattr(env, k).bit_generator.state = v["__rng__"]
+        elif isinstance(v, dict) and "__rngs__" in v:
+            for g, s in zip(getattr(env, k), v["__rngs__"], strict=True):
+                g.bit_generator.state = s
+        else:
+            setattr(env, k, v)
+
+
+# --- optimiser state --------------------------------------------------------------------------
+
+
+def optimizer_to_arrays(prefix: str, opt: torch.optim.Optimizer
+                        ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    sd = opt.state_dict()
+    arrays: dict[str, np.ndarray] = {}
+    scalars: dict[str, Any] = {}
+    for pid, st in sd["state"].items():
+        for key, val in st.items():
+            name = f"{prefix}.{pid}.{key}"
+            if isinstance(val, torch.Tensor):
+                arrays[name] = val.detach().cpu().numpy().copy()
+            else:
+                scalars[name] = val
+    return arrays, {"param_groups": sd["param_groups"], "scalars": scalars}
+
+
+def optimizer_from_arrays(prefix: str, opt: torch.optim.Optimizer, arrays: dict[str, np.ndarray],
+                          meta: dict[str, Any]) -> None:
+    state: dict[int, dict[str, Any]] = {}
+    for name, a in arrays.items():
+        if name.startswith(prefix + "."):
+            pid, key = name[len(prefix) + 1 :].split(".", 1)
+            state.setdefault(int(pid), {})[key] = torch.from_numpy(a.copy())
+    for name, v in meta["scalars"].items():
+        pid, key = name[len(prefix) + 1 :].split(".", 1)
+        state.setdefault(int(pid), {})[key] = v
+    opt.load_state_dict({"state": state, "param_groups": meta["param_groups"]})
+
+
+# --- files ------------------------------------------------------------------------------------
+
+
+def save_checkpoint(path: str | Path, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+    """Write ``<path>.safetensors`` and ``<path>.json`` (tensors file first, JSON last, so a
+    checkpoint whose JSON exists is complete)."""
+    path = Path(path)
+    payload = st_save({k: np.ascontiguousarray(v) for k, v in arrays.items()})
+    atomic_write_bytes(path.with_suffix(".safetensors"), payload)
+    full = {"format": CHECKPOINT_FORMAT, "tensors_sha256": sha256_hex(payload), **meta}
+    atomic_write_bytes(path.with_suffix(".json"), json.dumps(full, indent=1).encode())
+
+
+def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    path = Path(path)
+    try:
+        meta = json.loads(path.with_suffix(".json").read_text())
+        payload = path.with_suffix(".safetensors").read_bytes()
+    except (OSError, json.JSONDecodeError) as e:
+        raise CheckpointError(f"cannot read checkpoint {path}: {e}") from e
+    if meta.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path}: format {meta.get('format')!r}, expected {CHECKPOINT_FORMAT}")
+    if sha256_hex(payload) != meta.get("tensors_sha256"):
+        raise CheckpointError(f"{path}: tensors file does not match its sha256")
+    return st_load(payload), meta
+
+
+def module_arrays(prefix: str, module: torch.nn.Module) -> dict[str, np.ndarray]:
+    return {f"{prefix}.{k}": v.detach().cpu().numpy().copy()
+            for k, v in module.state_dict().items()}
+
+
+def load_module(prefix: str, module: torch.nn.Module, arrays: dict[str, np.ndarray]) -> None:
+    sd = {k[len(prefix) + 1 :]: torch.from_numpy(v.copy()) for k, v in arrays.items()
+          if k.startswith(prefix + ".")}
+    module.load_state_dict(sd, strict=True)

@@ -1,0 +1,265 @@
+"""Typed training configuration: one dataclass per concern, a help string per field.
+
+Load order: defaults <- YAML file (``--config``) <- CLI shortcuts (``--env`` ...) <- ``--set a.b=v``.
+``validate`` runs before anything starts and raises ConfigError naming the field and the allowed
+values.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+ENV_NAMES: tuple[str, ...] = (
+    "maif-tiny", "maif-10", "maif-16", "maif-20", "rware-3", "rware-6", "rware-9",
+)
+ALGO_NAMES: tuple[str, ...] = ("sdhn", "mappo")
+NOISES: tuple[str, ...] = ("logistic", "gumbel_paper")
+
+
+class ConfigError(ValueError):
+    """Invalid configuration; the message names the field and the allowed values."""
+
+
+def opt(default: Any, help: str) -> Any:  # noqa: A002 - "help" reads best in the tables below
+    if isinstance(default, (list, dict, tuple)):
+        return field(default_factory=lambda: copy.deepcopy(default), metadata={"help": help})
+    return field(default=default, metadata={"help": help})
+
+
+@dataclass
+class EnvConfig:
+    name: str = opt("maif-10", f"environment, one of {', '.join(ENV_NAMES)}")
+    num_envs: int = opt(32, "B: environments stepped together in one process")
+
+
+@dataclass
+class AlgoConfig:
+    name: str = opt("sdhn", f"algorithm (only the critic differs), one of {', '.join(ALGO_NAMES)}")
+
+
+@dataclass
+class ActorConfig:
+    hidden_sizes: list[int] = opt([64], "MLP encoder widths before the GRU")
+    gru_hidden: int = opt(64, "GRU hidden size")
+    use_robot_id: bool = opt(False, "append a one-hot robot id to each local observation")
+
+
+@dataclass
+class PPOConfig:
+    rollout_len: int = opt(128, "T: steps per environment per rollout")
+    lr: float | None = opt(None, "actor Adam learning rate; null = algorithm default "
+                                 "(sdhn 6e-4, mappo 3e-4)")
+    critic_lr: float | None = opt(None, "critic Adam learning rate; null = same as lr")
+    gamma: float = opt(0.99, "discount factor")
+    gae_lambda: float = opt(0.95, "GAE lambda")
+    clip: float = opt(0.2, "PPO ratio clip epsilon")
+    epochs: int = opt(4, "passes over each rollout")
+    num_minibatches: int = opt(4, "minibatches per epoch, split over environments (<= B)")
+    entropy_coef: float = opt(0.01, "entropy bonus weight")
+    max_grad_norm: float = opt(10.0, "gradient-norm clip for actor and critic")
+    normalize_advantages: bool = opt(True, "standardise advantages per minibatch")
+    target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
+                                         "null = algorithm default (sdhn 0.01, mappo 1 = no target)")
+    reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
+
+
+@dataclass
+class SDHNConfig:
+    num_hyperedges: int = opt(10, "M: hyperedges in the generated hypergraph")
+    generator_hidden: int = opt(64, "f_g GRU hidden size")
+    generator_layers: int = opt(3, "f_g GRU layers (paper: 3)")
+    hgcn_hidden: int = opt(64, "HGCN feature size")
+    hgcn_layers: int = opt(2, "HGCN layers (paper: 2)")
+    state_hidden: int = opt(64, "global-state encoder size of the value head")
+    tau: float = opt(1.0, "Binary Concrete temperature")
+    noise: str = opt("logistic", f"Binary Concrete noise, one of {', '.join(NOISES)}")
+    lambda_sk: float = opt(-0.6, "target skewness lambda_Sk, in (-1, 1)")
+    lambda_cb: float = opt(1.0, "weight lambda_CB of L_Sk in the critic loss, >= 0")
+    skew_loss: bool = opt(True, "add lambda_CB * L_Sk (false = ablation 'w/o L_Sk')")
+    stochastic_hyperedges: bool = opt(True, "sample H (false = ablation 'w/o SHR', H=1{P_H>=0.5})")
+
+
+@dataclass
+class MAPPOConfig:
+    critic_hidden: list[int] = opt([64, 64], "MLP critic widths")
+
+
+@dataclass
+class TrainConfig:
+    total_steps: int = opt(1_000_000, "team env-steps to train for (summed over B envs)")
+    seed: int = opt(1, "seed of everything (torch, numpy, environments)")
+    deterministic: bool = opt(False, "torch deterministic algorithms")
+    threads: int = opt(1, "torch intra-op threads")
+
+
+@dataclass
+class EvalConfig:
+    interval: int = opt(50_000, "team env-steps between greedy evaluations (0 = never)")
+    episodes: int = opt(16, "fixed evaluation instances (one episode each)")
+    seed: int = opt(12345, "seed of the fixed evaluation instances")
+
+
+@dataclass
+class LogConfig:
+    root: str = opt("runs", "directory holding run directories")
+    run_name: str | None = opt(None, "run directory name; null = <env>__<algo>__<seed>__<time>")
+    checkpoint_interval: int = opt(200_000, "team env-steps between checkpoints (0 = end only)")
+    progress: bool = opt(True, "show a progress bar")
+    tensorboard: bool = opt(True, "write TensorBoard scalars")
+
+
+@dataclass
+class Config:
+    env: EnvConfig = field(default_factory=EnvConfig)
+    algo: AlgoConfig = field(default_factory=AlgoConfig)
+    actor: ActorConfig = field(default_factory=ActorConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    sdhn: SDHNConfig = field(default_factory=SDHNConfig)
+    mappo: MAPPOConfig = field(default_factory=MAPPOConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+# --- building from YAML / overrides -----------------------------------------------------------
+
+
+def _coerce(path: str, tp: Any, value: Any) -> Any:
+    """Convert ``value`` (YAML scalar or CLI string) to the annotated type ``tp``."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        if value is None or (isinstance(value, str) and value.lower() in ("null", "none")):
+            if type(None) in args:
+                return None
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(path, inner[0], value)
+    if origin is list:
+        if isinstance(value, str):
+            value = yaml.safe_load(value if value.startswith("[") else f"[{value}]")
+        if not isinstance(value, list):
+            raise ConfigError(f"{path}: expected a list, got {value!r}")
+        return [_coerce(path, args[0], v) for v in value]
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "1", "yes", "on", "false", "0",
+                                                        "no", "off"):
+            return value.lower() in ("true", "1", "yes", "on")
+        raise ConfigError(f"{path}: expected true or false, got {value!r}")
+    try:
+        if tp is int:
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(float(value)) if isinstance(value, str) else int(value)
+        if tp is float:
+            return float(value)
+        if tp is str:
+            return str(value)
+    except (TypeError, ValueError):
+        pass
+    else:
+        raise ConfigError(f"{path}: unsupported type {tp}")
+    raise ConfigError(f"{path}: expected {getattr(tp, '__name__', tp)}, got {value!r}")
+
+
+def set_field(cfg: Config, dotted: str, value: Any) -> None:
+    """Set ``section.field`` (e.g. ``ppo.lr``) with type conversion; ConfigError if unknown."""
+    parts = dotted.split(".")
+    if len(parts) != 2:
+        raise ConfigError(f"{dotted}: expected <section>.<field>, sections: "
+                          f"{', '.join(f.name for f in dataclasses.fields(Config))}")
+    section_name, name = parts
+    sections = {f.name: f for f in dataclasses.fields(Config)}
+    if section_name not in sections:
+        raise ConfigError(f"{dotted}: unknown section {section_name!r}; allowed: "
+                          f"{', '.join(sections)}")
+    section = getattr(cfg, section_name)
+    hints = typing.get_type_hints(type(section))
+    if name not in hints:
+        raise ConfigError(f"{dotted}: unknown field; {section_name} has: {', '.join(hints)}")
+    setattr(section, name, _coerce(dotted, hints[name], value))
+
+
+def apply_dict(cfg: Config, data: dict[str, Any]) -> None:
+    for section, values in data.items():
+        if not isinstance(values, dict):
+            raise ConfigError(f"{section}: expected a mapping of fields, got {values!r}")
+        for name, value in values.items():
+            set_field(cfg, f"{section}.{name}", value)
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    data = yaml.safe_load(Path(path).read_text()) or {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: the top level must be a mapping of sections")
+    return data
+
+
+def validate(cfg: Config) -> None:
+    """Reject bad values before anything starts (ConfigError naming field and allowed values)."""
+
+    def need(ok: bool, path: str, allowed: str, value: Any) -> None:
+        if not ok:
+            raise ConfigError(f"{path} = {value!r} is invalid; allowed: {allowed}")
+
+    need(cfg.env.name in ENV_NAMES, "env.name", ", ".join(ENV_NAMES), cfg.env.name)
+    need(cfg.algo.name in ALGO_NAMES, "algo.name", ", ".join(ALGO_NAMES), cfg.algo.name)
+    need(cfg.sdhn.noise in NOISES, "sdhn.noise", ", ".join(NOISES), cfg.sdhn.noise)
+    positive = {
+        "env.num_envs": cfg.env.num_envs, "train.total_steps": cfg.train.total_steps,
+        "train.threads": cfg.train.threads, "ppo.rollout_len": cfg.ppo.rollout_len,
+        "ppo.epochs": cfg.ppo.epochs, "ppo.num_minibatches": cfg.ppo.num_minibatches,
+        "sdhn.num_hyperedges": cfg.sdhn.num_hyperedges,
+        "sdhn.generator_hidden": cfg.sdhn.generator_hidden,
+        "sdhn.generator_layers": cfg.sdhn.generator_layers, "sdhn.hgcn_hidden": cfg.sdhn.hgcn_hidden,
+        "sdhn.hgcn_layers": cfg.sdhn.hgcn_layers, "sdhn.state_hidden": cfg.sdhn.state_hidden,
+        "actor.gru_hidden": cfg.actor.gru_hidden, "eval.episodes": cfg.eval.episodes,
+    }
+    for path, v in positive.items():
+        need(v >= 1, path, "an integer >= 1", v)
+    for path, v in {"eval.interval": cfg.eval.interval,
+                    "log.checkpoint_interval": cfg.log.checkpoint_interval}.items():
+        need(v >= 0, path, "an integer >= 0 (0 = never / end only)", v)
+    need(cfg.ppo.num_minibatches <= cfg.env.num_envs, "ppo.num_minibatches",
+         f"1..env.num_envs ({cfg.env.num_envs})", cfg.ppo.num_minibatches)
+    need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",
+         cfg.actor.hidden_sizes)
+    need(len(cfg.mappo.critic_hidden) >= 1 and all(h >= 1 for h in cfg.mappo.critic_hidden),
+         "mappo.critic_hidden", "one or more widths >= 1", cfg.mappo.critic_hidden)
+    for path, v in {"ppo.lr": cfg.ppo.lr, "ppo.critic_lr": cfg.ppo.critic_lr}.items():
+        need(v is None or v > 0, path, "a number > 0 or null", v)
+    need(0.0 <= cfg.ppo.gamma <= 1.0, "ppo.gamma", "[0, 1]", cfg.ppo.gamma)
+    need(0.0 <= cfg.ppo.gae_lambda <= 1.0, "ppo.gae_lambda", "[0, 1]", cfg.ppo.gae_lambda)
+    need(0.0 < cfg.ppo.clip < 1.0, "ppo.clip", "(0, 1)", cfg.ppo.clip)
+    need(cfg.ppo.entropy_coef >= 0, "ppo.entropy_coef", ">= 0", cfg.ppo.entropy_coef)
+    need(cfg.ppo.max_grad_norm > 0, "ppo.max_grad_norm", "> 0", cfg.ppo.max_grad_norm)
+    need(cfg.ppo.reward_scale > 0, "ppo.reward_scale", "> 0", cfg.ppo.reward_scale)
+    need(cfg.ppo.target_tau is None or 0.0 < cfg.ppo.target_tau <= 1.0, "ppo.target_tau",
+         "(0, 1] or null", cfg.ppo.target_tau)
+    need(-1.0 < cfg.sdhn.lambda_sk < 1.0, "sdhn.lambda_sk", "(-1, 1) (the range of Sk)",
+         cfg.sdhn.lambda_sk)
+    need(cfg.sdhn.lambda_cb >= 0.0, "sdhn.lambda_cb", ">= 0", cfg.sdhn.lambda_cb)
+    need(cfg.sdhn.tau > 0.0, "sdhn.tau", "> 0", cfg.sdhn.tau)
+
+
+def describe() -> str:
+    """Every field with its default and help string (for ``--help``)."""
+    lines = []
+    for sec in dataclasses.fields(Config):
+        section = sec.default_factory()  # type: ignore[misc]
+        for f in dataclasses.fields(section):
+            lines.append(f"  {sec.name}.{f.name} = {getattr(section, f.name)!r}: "
+                         f"{f.metadata.get('help', '')}")
+    return "\n".join(lines)

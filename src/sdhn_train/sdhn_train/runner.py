@@ -1,0 +1,106 @@
+"""Vectorised rollout collection and greedy evaluation for the in-process trainer."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from sdhn_policy.actor_torch import Actor
+from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
+from sdhn_train.rollout import Rollout
+
+
+@dataclass
+class Timings:
+    """Wall seconds spent per part of the loop (for the benchmark and steps/s)."""
+
+    env: float = 0.0
+    actor: float = 0.0
+    update: float = 0.0
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+class RolloutCollector:
+    """Steps B environments with the shared actor and fills ``Rollout``s of length T.
+
+    Keeps the environments' current obs/state and the actor's hidden state between rollouts.
+    Actions are sampled with torch's global RNG (seeded in one place by the trainer)."""
+
+    def __init__(self, env: BatchedEnv, actor: Actor, rollout_len: int) -> None:
+        self.env, self.actor, self.rollout_len = env, actor, rollout_len
+        b, n = env.num_envs, env.num_robots
+        self.obs, self.state = env.reset()
+        self.actor_h = np.zeros((b, n, actor.spec.gru_hidden), dtype=np.float32)
+        self.timings = Timings()
+
+    @torch.no_grad()
+    def collect(self, critic_h0: np.ndarray | None) -> tuple[Rollout, list[EpisodeStats]]:
+        env, t_len = self.env, self.rollout_len
+        b, n, d = env.num_envs, env.num_robots, env.obs_size
+        obs = np.empty((t_len, b, n, d), np.float32)
+        state = np.empty((t_len, b, env.state_size), np.float32)
+        final_obs = np.empty_like(obs)
+        final_state = np.empty_like(state)
+        actions = np.empty((t_len, b, n), np.int64)
+        logps = np.empty((t_len, b, n), np.float32)
+        rewards = np.empty((t_len, b), np.float32)
+        term = np.empty((t_len, b), bool)
+        trunc = np.empty((t_len, b), bool)
+        actor_h0 = self.actor_h.copy()
+        episodes: list[EpisodeStats] = []
+        h = torch.from_numpy(self.actor_h).reshape(b * n, -1)
+        for t in range(t_len):
+            t0 = time.perf_counter()
+            obs[t], state[t] = self.obs, self.state
+            x = self.actor.with_robot_id(torch.from_numpy(self.obs)).reshape(b * n, -1)
+            logits, h = self.actor.step(x, h)
+            logp_all = torch.log_softmax(logits, -1)
+            # Gumbel-max sampling == Categorical(logits).sample()
+            a = (logp_all - torch.log(-torch.log(torch.rand_like(logp_all)))).argmax(-1)
+            actions[t] = a.reshape(b, n).numpy()
+            logps[t] = logp_all.gather(-1, a[:, None]).reshape(b, n).numpy()
+            t1 = time.perf_counter()
+            res = env.step(actions[t])
+            t2 = time.perf_counter()
+            self.timings.actor += t1 - t0
+            self.timings.env += t2 - t1
+            rewards[t], term[t], trunc[t] = res.reward, res.terminated, res.truncated
+            final_obs[t], final_state[t] = res.final_obs, res.final_state
+            self.obs, self.state = res.obs, res.state
+            done = res.terminated | res.truncated
+            if done.any():
+                h = h.reshape(b, n, -1)
+                h[torch.from_numpy(done)] = 0.0
+                h = h.reshape(b * n, -1)
+            episodes.extend(res.episodes)
+        self.actor_h = h.reshape(b, n, -1).numpy().copy()
+        rollout = Rollout(obs, state, actions, logps, rewards, term, trunc, final_obs, final_state,
+                          actor_h0, critic_h0)
+        return rollout, episodes
+
+
+@torch.no_grad()
+def evaluate_greedy(env: BatchedEnv, actor: Actor, seed: int) -> list[EpisodeStats]:
+    """One greedy episode in each of the B environments, from ``env.reset(seed)`` (fixed
+    instances for a fixed seed). Returns the first finished episode of every environment."""
+    obs, _ = env.reset(seed=seed)
+    b, n = env.num_envs, env.num_robots
+    h = torch.zeros(b * n, actor.spec.gru_hidden)
+    first: dict[int, EpisodeStats] = {}
+    for _ in range(env.max_steps):
+        x = actor.with_robot_id(torch.from_numpy(obs)).reshape(b * n, -1)
+        logits, h = actor.step(x, h)
+        res = env.step(logits.argmax(-1).reshape(b, n).numpy())
+        for ep in res.episodes:
+            first.setdefault(ep.env_index, ep)
+        if len(first) == b:
+            break
+        done = torch.from_numpy(res.terminated | res.truncated)
+        h = h.reshape(b, n, -1)
+        h[done] = 0.0
+        h = h.reshape(b * n, -1)
+        obs = res.obs
+    return [first[k] for k in sorted(first)]

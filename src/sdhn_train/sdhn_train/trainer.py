@@ -1,0 +1,255 @@
+"""In-process trainer: vectorised rollouts -> shared PPO update -> logs, evaluation, checkpoints.
+
+Reads top to bottom in ``Trainer.run``. Seeding happens once, in ``seed_everything``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import random
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+import torch
+import yaml
+
+from sdhn_policy.weights import save_actor_file
+from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
+from sdhn_train import checkpoint as ckpt
+from sdhn_train.algorithms import EnvInfo, build_learner
+from sdhn_train.config import Config
+from sdhn_train.ppo import NonFiniteLossError
+from sdhn_train.runner import RolloutCollector, evaluate_greedy
+
+EnvFactory = Callable[[str, int, int], BatchedEnv]
+
+
+def default_env_factory(name: str, num_envs: int, seed: int) -> BatchedEnv:
+    from sdhn_sim.envs import make_env
+
+    return make_env(name, num_envs=num_envs, seed=seed)
+
+
+def seed_everything(seed: int, deterministic: bool, threads: int) -> np.random.Generator:
+    """The one place that seeds: Python, NumPy (returned generator), torch."""
+    random.seed(seed)
+    torch.manual_seed(seed)
+    torch.set_num_threads(threads)
+    torch.use_deterministic_algorithms(deterministic)
+    return np.random.default_rng(seed)
+
+
+def episode_metrics(prefix: str, episodes: list[EpisodeStats]) -> dict[str, float]:
+    if not episodes:
+        return {}
+    out = {
+        f"{prefix}/episodic_return": float(np.mean([e.episode_return for e in episodes])),
+        f"{prefix}/episode_length": float(np.mean([e.length for e in episodes])),
+        f"{prefix}/success_rate": float(np.mean([e.success for e in episodes])),
+        f"{prefix}/collisions": float(np.mean([e.collisions for e in episodes])),
+    }
+    done = [e.makespan for e in episodes if e.makespan is not None]
+    if done:  # makespan of completed episodes only (NC episodes have none)
+        out[f"{prefix}/makespan"] = float(np.mean(done))
+    return out
+
+
+class MetricsLog:
+    """CSV (long format: step, wall_time, tag, value) + optional TensorBoard."""
+
+    def __init__(self, run_dir: Path, tensorboard: bool) -> None:
+        self._f: TextIO = open(run_dir / "metrics.csv", "a", newline="")  # noqa: SIM115
+        self._csv = csv.writer(self._f)
+        if self._f.tell() == 0:
+            self._csv.writerow(["step", "wall_time", "tag", "value"])
+        self._tb: Any = None
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._tb = SummaryWriter(str(run_dir))
+
+    def write(self, step: int, metrics: dict[str, float]) -> None:
+        now = time.time()
+        for tag, value in metrics.items():
+            self._csv.writerow([step, f"{now:.3f}", tag, f"{value:.6g}"])
+            if self._tb is not None:
+                self._tb.add_scalar(tag, value, step)
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+        if self._tb is not None:
+            self._tb.close()
+
+
+class Trainer:
+    def __init__(self, cfg: Config, env_factory: EnvFactory = default_env_factory,
+                 run_dir: Path | None = None) -> None:
+        self.cfg = cfg
+        self.np_rng = seed_everything(cfg.train.seed, cfg.train.deterministic, cfg.train.threads)
+        self.env = env_factory(cfg.env.name, cfg.env.num_envs, cfg.train.seed)
+        self.eval_env = (env_factory(cfg.env.name, cfg.eval.episodes, cfg.eval.seed)
+                         if cfg.eval.interval > 0 else None)
+        self.learner = build_learner(cfg, EnvInfo.of(self.env), self.np_rng)
+        self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len)
+        self.critic_h = self.learner.critic.initial_state(cfg.env.num_envs).numpy()
+        self.global_step = 0
+        self.last_checkpoint: Path | None = None
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        name = cfg.log.run_name or f"{cfg.env.name}__{cfg.algo.name}__{cfg.train.seed}__{stamp}"
+        self.run_dir = run_dir or Path(cfg.log.root) / name
+
+    # -- checkpoints ---------------------------------------------------------------------------
+
+    def save_checkpoint(self) -> Path:
+        lr = self.learner
+        arrays: dict[str, np.ndarray] = {}
+        for prefix, module in (("actor", lr.actor), ("critic", lr.critic),
+                               ("target", lr.target_critic)):
+            arrays.update(ckpt.module_arrays(prefix, module))
+        opt_meta = {}
+        for prefix, opt in (("optim.actor", lr.actor_opt), ("optim.critic", lr.critic_opt)):
+            a, m = ckpt.optimizer_to_arrays(prefix, opt)
+            arrays.update(a)
+            opt_meta[prefix] = m
+        env_arrays, env_values = ckpt.env_snapshot(self.env)
+        arrays.update({f"env.{k}": v for k, v in env_arrays.items()})
+        arrays["rng.torch"] = torch.get_rng_state().numpy()
+        arrays["collector.obs"] = self.collector.obs
+        arrays["collector.state"] = self.collector.state
+        arrays["collector.actor_h"] = self.collector.actor_h
+        arrays["collector.critic_h"] = self.critic_h
+        meta = {
+            "global_step": self.global_step, "num_updates": lr.num_updates,
+            "config": self.cfg.to_dict(), "optimizers": opt_meta, "env_values": env_values,
+            "rng_numpy": lr.rng.bit_generator.state, "rng_python": list(random.getstate()[1]),
+        }
+        path = self.run_dir / "checkpoints" / f"step_{self.global_step:012d}"
+        ckpt.save_checkpoint(path, arrays, meta)
+        self.last_checkpoint = path
+        return path
+
+    def load_checkpoint(self, path: Path) -> None:
+        arrays, meta = ckpt.load_checkpoint(path)
+        lr = self.learner
+        ckpt.load_module("actor", lr.actor, arrays)
+        ckpt.load_module("critic", lr.critic, arrays)
+        ckpt.load_module("target", lr.target_critic, arrays)
+        ckpt.optimizer_from_arrays("optim.actor", lr.actor_opt, arrays, meta["optimizers"]["optim.actor"])
+        ckpt.optimizer_from_arrays("optim.critic", lr.critic_opt, arrays,
+                                   meta["optimizers"]["optim.critic"])
+        ckpt.env_restore(self.env, {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
+                         meta["env_values"])
+        torch.set_rng_state(torch.from_numpy(arrays["rng.torch"].copy()))
+        lr.rng.bit_generator.state = meta["rng_numpy"]
+        random.setstate((3, tuple(meta["rng_python"]), None))
+        self.collector.obs = arrays["collector.obs"].copy()
+        self.collector.state = arrays["collector.state"].copy()
+        self.collector.actor_h = arrays["collector.actor_h"].copy()
+        self.critic_h = arrays["collector.critic_h"].copy()
+        self.global_step = int(meta["global_step"])
+        lr.num_updates = int(meta["num_updates"])
+        self.last_checkpoint = path
+
+    # -- the loop ------------------------------------------------------------------------------
+
+    def evaluate(self) -> dict[str, float]:
+        assert self.eval_env is not None
+        episodes = evaluate_greedy(self.eval_env, self.learner.actor, self.cfg.eval.seed)
+        return episode_metrics("eval", episodes)
+
+    def train_iteration(self) -> tuple[dict[str, float], list[EpisodeStats]]:
+        """One rollout + one PPO update (the unit that checkpoints and resume line up on)."""
+        rollout, episodes = self.collector.collect(self.critic_h)
+        t0 = time.perf_counter()
+        metrics = self.learner.update(rollout)
+        self.collector.timings.update += time.perf_counter() - t0
+        assert self.learner.next_critic_hidden is not None
+        self.critic_h = self.learner.next_critic_hidden
+        self.global_step += rollout.rewards.size
+        return metrics, episodes
+
+    def run(self, resume: Path | None = None, out: TextIO = sys.stderr) -> int:
+        cfg = self.cfg
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        (self.run_dir / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+        if resume is not None:
+            self.load_checkpoint(resume)
+            print(f"resumed from {resume} at step {self.global_step}", file=out)
+        log = MetricsLog(self.run_dir, cfg.log.tensorboard)
+        bar = _progress(cfg.train.total_steps, self.global_step, cfg.log.progress, out)
+        next_eval = _next_multiple(self.global_step, cfg.eval.interval)
+        next_ckpt = _next_multiple(self.global_step, cfg.log.checkpoint_interval)
+        start_time, start_step = time.perf_counter(), self.global_step
+        recent: list[EpisodeStats] = []
+        try:
+            while self.global_step < cfg.train.total_steps:
+                metrics, episodes = self.train_iteration()
+                recent = (recent + episodes)[-100:]
+                sps = (self.global_step - start_step) / (time.perf_counter() - start_time)
+                metrics["charts/steps_per_second"] = sps
+                metrics.update(episode_metrics("charts", episodes))
+                if self.eval_env is not None and self.global_step >= next_eval:
+                    metrics.update(self.evaluate())
+                    next_eval = _next_multiple(self.global_step, cfg.eval.interval)
+                log.write(self.global_step, metrics)
+                if cfg.log.checkpoint_interval and self.global_step >= next_ckpt:
+                    self.save_checkpoint()
+                    next_ckpt = _next_multiple(self.global_step, cfg.log.checkpoint_interval)
+                bar.update(self.global_step, {
+                    "sps": f"{sps:.0f}",
+                    "ret": f"{np.mean([e.episode_return for e in recent]):.1f}" if recent else "-",
+                    "succ": f"{np.mean([e.success for e in recent]):.2f}" if recent else "-"})
+        except NonFiniteLossError as e:
+            bar.close()
+            log.close()
+            last = self.last_checkpoint or "none (no checkpoint was written yet)"
+            print(f"error: {e} at step {self.global_step}; last good checkpoint: {last}", file=out)
+            return 3
+        bar.close()
+        self.save_checkpoint()
+        final = self.evaluate() if self.eval_env is not None else {}
+        if final:
+            log.write(self.global_step, final)
+        log.close()
+        blob = self.learner.export_actor(version=self.learner.num_updates)
+        save_actor_file(self.run_dir / "actor.safetensors", blob)
+        summary = {"global_step": self.global_step, "run_dir": str(self.run_dir),
+                   "actor": str(self.run_dir / "actor.safetensors"), **final,
+                   "timings": asdict(self.collector.timings)}
+        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+        print(json.dumps(summary), file=out)
+        return 0
+
+
+def _next_multiple(step: int, interval: int) -> int:
+    return (step // interval + 1) * interval if interval > 0 else 1 << 62
+
+
+class _progress:
+    """tqdm bar with steps/s and ETA (a no-op when disabled)."""
+
+    def __init__(self, total: int, initial: int, enabled: bool, out: TextIO) -> None:
+        self._bar: Any = None
+        if enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, initial=initial, unit="step", unit_scale=True,
+                             dynamic_ncols=True, file=out)
+        self._n = initial
+
+    def update(self, step: int, postfix: dict[str, str]) -> None:
+        if self._bar is not None:
+            self._bar.update(step - self._n)
+            self._bar.set_postfix(postfix, refresh=False)
+        self._n = step
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()

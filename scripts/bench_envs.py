@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> None:
     print("\nRWARE env-steps/s (adapter vs raw gym.make, same actions)")
     print(f"{'task':<9}{'B':>4}{'adapter':>10}{'raw':>10}{'overhead':>10}")
     for name, b in (("rware-3", 1), ("rware-9", 1), ("rware-9", 8)):
-        a, r = bench_rware(name, b, max(20, steps // 2 // b), repeats)
+        a, r = bench_rware(name, b, max(20, (steps * 3 // 2) // b), repeats + 2)
         print(f"{name:<9}{b:>4}{a:>10,.0f}{r:>10,.0f}{(r / a - 1) * 100:>9.1f}%")
 
 

@@ -38,6 +38,7 @@ def opt(default: Any, help: str) -> Any:  # noqa: A002 - "help" reads best in th
 class EnvConfig:
     name: str = opt("maif-10", f"environment, one of {', '.join(ENV_NAMES)}")
     num_envs: int = opt(32, "B: environments stepped together in one process")
+    max_steps: int | None = opt(None, "episode step limit; null = the environment's (500 MAIF)")
 
 
 @dataclass
@@ -232,6 +233,8 @@ def validate(cfg: Config) -> None:
     for path, v in {"eval.interval": cfg.eval.interval,
                     "log.checkpoint_interval": cfg.log.checkpoint_interval}.items():
         need(v >= 0, path, "an integer >= 0 (0 = never / end only)", v)
+    need(cfg.env.max_steps is None or cfg.env.max_steps >= 1, "env.max_steps",
+         "an integer >= 1 or null", cfg.env.max_steps)
     need(cfg.ppo.num_minibatches <= cfg.env.num_envs, "ppo.num_minibatches",
          f"1..env.num_envs ({cfg.env.num_envs})", cfg.ppo.num_minibatches)
     need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",

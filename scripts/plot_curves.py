@@ -19,8 +19,8 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
 
 def read_run(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -54,9 +54,10 @@ def plot(runs: list[Path], tags: list[str], out: Path, smooth: int = 1) -> None:
                 continue
             grid = np.linspace(0, min(c[0][-1] for c in curves), 200)
             ys = []
-            for steps, vals in curves:
-                if smooth > 1 and len(vals) >= smooth:
-                    vals = np.convolve(vals, np.ones(smooth) / smooth, mode="same")
+            for steps, raw in curves:
+                vals = raw
+                if smooth > 1 and len(raw) >= smooth:
+                    vals = np.convolve(raw, np.ones(smooth) / smooth, mode="same")
                 ys.append(np.interp(grid, steps, vals))
             y = np.stack(ys)
             ax.plot(grid, y.mean(0), label=f"{name} (n={len(ys)})")

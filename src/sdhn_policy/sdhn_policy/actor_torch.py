@@ -7,6 +7,8 @@ encoder -> GRU cell -> categorical logits. ``export()`` produces the safetensors
 
 from __future__ import annotations
 
+import itertools
+
 import torch
 from torch import Tensor, nn
 
@@ -24,7 +26,7 @@ def gru_sequence(gru: nn.GRU, x: Tensor, h0: Tensor, resets: Tensor) -> tuple[Te
     keep = (~resets).to(x.dtype)[:, None, :, None]  # [T, 1, B, 1]
     hiddens = x.new_zeros(t_len, *h0.shape)
     outs, h = [], h0
-    for start, end in zip(cuts[:-1], cuts[1:], strict=True):
+    for start, end in itertools.pairwise(cuts):
         out, h = gru(x[start:end], h * keep[start])
         outs.append(out)
         hiddens[end - 1] = h.detach()
@@ -72,7 +74,7 @@ class Actor(nn.Module):
 
     def tensors(self) -> dict[str, Tensor]:
         """Parameters under the names of ``ActorSpec.tensor_shapes``."""
-        out: dict[str, Tensor] = {}
+        out: dict[str, Tensor | nn.Module] = {}
         linears = [m for m in self.encoder if isinstance(m, nn.Linear)]
         for k, lin in enumerate(linears):
             out[f"encoder.{k}.weight"] = lin.weight
@@ -83,7 +85,7 @@ class Actor(nn.Module):
         out["gru.bias_hh"] = self.gru.bias_hh_l0
         out["head.weight"] = self.head.weight
         out["head.bias"] = self.head.bias
-        return out
+        return {k: v for k, v in out.items() if isinstance(v, Tensor)}
 
     def export(self, version: int) -> ActorWeights:
         """The deployable blob (format, version, payload, sha256)."""

@@ -6,6 +6,7 @@ Shapes: X = any batch, N robots, M hyperedges, F features.
 
 from __future__ import annotations
 
+import itertools
 from typing import Literal
 
 import torch
@@ -124,7 +125,7 @@ class HGCN(nn.Module):
     def __init__(self, in_features: int, hidden: int, num_layers: int = 2) -> None:
         super().__init__()
         sizes = [in_features] + [hidden] * num_layers
-        self.layers = nn.ModuleList(HGCNLayer(a, b) for a, b in zip(sizes, sizes[1:], strict=False))
+        self.layers = nn.ModuleList(HGCNLayer(a, b) for a, b in itertools.pairwise(sizes))
 
     def forward(self, x: Tensor, incidence: Tensor) -> Tensor:
         for layer in self.layers:

@@ -28,7 +28,8 @@ class NonFiniteLossError(RuntimeError):
 
 def clipped_policy_loss(logp: Tensor, logp_old: Tensor, adv: Tensor,
                         clip: float) -> tuple[Tensor, Tensor, Tensor]:
-    """-E[min(eta A, clip(eta, 1-eps, 1+eps) A)] (eq. mappo). Returns (loss, approx_kl, clipfrac)."""
+    """-E[min(eta A, clip(eta, 1-eps, 1+eps) A)] (eq. mappo); returns (loss, approx_kl,
+    clipfrac)."""
     log_ratio = logp - logp_old
     ratio = log_ratio.exp()
     loss = -torch.min(ratio * adv, ratio.clamp(1.0 - clip, 1.0 + clip) * adv).mean()
@@ -114,7 +115,7 @@ class PPOLearner:
             "final_state": torch.from_numpy(rollout.final_state),
             "actor_h0": torch.from_numpy(rollout.actor_h0),
         }
-        t_len, b, n = rollout.shape
+        b = rollout.shape[1]
         h0 = (torch.from_numpy(rollout.critic_h0) if rollout.critic_h0 is not None
               else self.critic.initial_state(b))
         t0 = time.perf_counter()

@@ -142,7 +142,8 @@ class Trainer:
         ckpt.load_module("actor", lr.actor, arrays)
         ckpt.load_module("critic", lr.critic, arrays)
         ckpt.load_module("target", lr.target_critic, arrays)
-        ckpt.optimizer_from_arrays("optim.actor", lr.actor_opt, arrays, meta["optimizers"]["optim.actor"])
+        ckpt.optimizer_from_arrays("optim.actor", lr.actor_opt, arrays,
+                                   meta["optimizers"]["optim.actor"])
         ckpt.optimizer_from_arrays("optim.critic", lr.critic_opt, arrays,
                                    meta["optimizers"]["optim.critic"])
         ckpt.env_restore(self.env, {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},

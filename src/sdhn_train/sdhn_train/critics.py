@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import itertools
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import torch
 from torch import Tensor, nn
@@ -21,6 +22,8 @@ from sdhn_train.skewness import (
     skewness_loss,
     squashed_skewness,
 )
+
+ModuleT = TypeVar("ModuleT", bound=nn.Module)
 
 
 @dataclass
@@ -53,6 +56,7 @@ class SDHNCritic(nn.Module):
                                              generator_hidden, generator_layers)
         self.node_encoder = mlp([obs_size, hgcn_hidden])
         self.hgcn = HGCN(hgcn_hidden, hgcn_hidden, hgcn_layers)
+        self.hgcn_hidden = hgcn_hidden
         self.state_encoder = mlp([state_size, state_hidden])
         self.value_head = nn.Sequential(mlp([state_hidden + hgcn_hidden, 64]), nn.Linear(64, 1))
 
@@ -64,7 +68,7 @@ class SDHNCritic(nn.Module):
         incidence, _ = binary_concrete(logits, self.tau, self.noise, self.stochastic)
         lead = obs.shape[:-2]
         n = obs.shape[-2]
-        x = self.node_encoder(obs).reshape(-1, n, self.hgcn.layers[0].theta.in_features)
+        x = self.node_encoder(obs).reshape(-1, n, self.hgcn_hidden)
         m = self.hgcn(x, incidence.reshape(-1, n, incidence.shape[-1])).reshape(*lead, n, -1)
         s = self.state_encoder(state).unsqueeze(-2).expand(*lead, n, -1)
         return self.value_head(torch.cat([s, m], dim=-1)).squeeze(-1), incidence
@@ -128,7 +132,7 @@ def soft_update(target: nn.Module, source: nn.Module, rate: float) -> None:
             tp.lerp_(sp, rate)
 
 
-def make_target(critic: nn.Module) -> nn.Module:
+def make_target(critic: ModuleT) -> ModuleT:
     target = copy.deepcopy(critic)
     target.requires_grad_(False)
     return target

@@ -1,21 +1,117 @@
-"""Per-robot actor node (placeholder until the ROS stack lands): starts, logs, stops cleanly."""
+"""Per-robot actor node ``sdhn_policy actor``: one OS process per robot, NumPy policy only.
+
+Launched as ``actor --ros-args -r __ns:=/sdhn/robot_<i> -p robot_id:=<i> -p num_robots:=<N>``.
+Subscribes to its own ``{team_ns}/robot_<i>/obs`` and to ``{team_ns}/policy/weights`` (latched),
+publishes ``{team_ns}/robot_<i>/action``. Nothing else: an actor never sees another robot's
+observation or the global state. The obs subscription and the action publisher are created only
+once the actor holds weights (from ``weights_file`` at start, or the first valid weights message),
+so the simulator, which waits for both before step 0, never starts a step this actor cannot answer.
+The decision logic lives in :mod:`sdhn_policy.actor_core`; this file never imports torch.
+"""
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 
+import numpy as np
 from rclpy.context import Context
 from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.subscription import Subscription
 
-from sdhn_sim.base_node import run_node
+from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
+from sdhn_policy.actor_core import ActorCore, Decision, Drop, weights_error_kind
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.weights import WeightsError
+from sdhn_sim.base_node import ConfigError, run_node
+from sdhn_sim.qos import LATCHED, STEP
 
 
 class ActorNode(Node):
     def __init__(self, context: Context) -> None:
         super().__init__("actor", context=context)
-        self.robot_id = int(self.declare_parameter("robot_id", 0).value)
-        self.get_logger().info(f"ready: robot_id={self.robot_id}")
+        ns = str(self.declare_parameter("team_ns", "/sdhn").value).rstrip("/")
+        robot_id = self.declare_parameter("robot_id", 0).value
+        num_robots = self.declare_parameter("num_robots", 10).value
+        weights_file = str(self.declare_parameter("weights_file", "").value)
+        greedy = self.declare_parameter("greedy", False).value
+        seed = self.declare_parameter("seed", 0).value
+        if not ns.startswith("/"):
+            raise ConfigError(f"team_ns: must be an absolute namespace like /sdhn, got {ns!r}")
+        if not isinstance(num_robots, int) or num_robots < 1:
+            raise ConfigError(f"num_robots: got {num_robots!r}; allowed: an integer >= 1")
+        if not isinstance(robot_id, int) or not 0 <= robot_id < num_robots:
+            raise ConfigError(f"robot_id: got {robot_id!r}; allowed: 0 <= robot_id < num_robots "
+                              f"({num_robots})")
+        if not isinstance(greedy, bool):
+            raise ConfigError(f"greedy: got {greedy!r}; allowed: true, false")
+        if not isinstance(seed, int) or seed < 0:
+            raise ConfigError(f"seed: got {seed!r}; allowed: an integer >= 0")
+        runtime = None
+        if weights_file:
+            try:
+                runtime = ActorRuntime.from_file(weights_file)
+            except WeightsError as e:
+                raise ConfigError(f"weights_file: {weights_file}: {e.reason}") from e
+        try:
+            self.core = ActorCore(robot_id, num_robots, greedy, seed, runtime)
+        except WeightsError as e:
+            raise ConfigError(f"weights_file: {weights_file}: {e.reason}") from e
+        self.ns, self.robot_id = ns, robot_id
+        self.drops: Counter[str] = Counter()
+        self.obs_sub: Subscription | None = None
+        self.action_pub: Publisher | None = None
+        self.weights_sub = self.create_subscription(
+            PolicyWeights, f"{ns}/policy/weights", self.on_weights, LATCHED)
+        if runtime is not None:
+            self.open_step_topics()
+        source = weights_file or f"waiting for {ns}/policy/weights"
+        self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={greedy}, "
+                               f"weights: {source} (version {self.core.version})")
+
+    def open_step_topics(self) -> None:
+        """Create the obs subscription and the action publisher (once we can answer)."""
+        self.action_pub = self.create_publisher(
+            RobotAction, f"{self.ns}/robot_{self.robot_id}/action", STEP)
+        self.obs_sub = self.create_subscription(
+            RobotObservation, f"{self.ns}/robot_{self.robot_id}/obs", self.on_obs, STEP)
+
+    def on_weights(self, msg: PolicyWeights) -> None:
+        try:
+            self.core.offer_weights(msg.format, int(msg.version), bytes(msg.payload), msg.sha256)
+        except WeightsError as e:
+            self.drop(weights_error_kind(e.reason), f"weights version {msg.version}: {e.reason}; "
+                      f"keeping version {self.core.version}")
+            return
+        self.get_logger().info(f"weights version {msg.version} accepted (used from the next step)")
+        if self.obs_sub is None:
+            self.open_step_topics()
+
+    def on_obs(self, msg: RobotObservation) -> None:
+        obs = np.frombuffer(msg.obs, dtype=np.float32)
+        out = self.core.on_obs(int(msg.episode), int(msg.step), int(msg.robot_id),
+                               int(msg.num_robots), obs, done=msg.terminated or msg.truncated)
+        if isinstance(out, Decision):
+            assert self.action_pub is not None
+            a = RobotAction()
+            a.header.stamp = self.get_clock().now().to_msg()
+            a.episode, a.step, a.robot_id = msg.episode, msg.step, self.robot_id
+            a.action, a.log_prob, a.policy_version = out.action, out.log_prob, out.version
+            self.action_pub.publish(a)
+        elif isinstance(out, Drop):
+            self.drop(out.kind, f"episode {msg.episode} step {msg.step}: {out.reason}")
+
+    def drop(self, kind: str, detail: str) -> None:
+        self.drops[kind] += 1
+        if self.drops[kind] == 1:
+            self.get_logger().warning(f"dropped ({kind}): {detail} (logged once per kind)")
+
+
+def _on_stop(node: Node) -> None:
+    if isinstance(node, ActorNode) and node.drops:
+        node.get_logger().info(f"drops: {dict(node.drops)}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_node(lambda context, _args: ActorNode(context), argv)
+    return run_node(lambda context, _args: ActorNode(context), argv, _on_stop)

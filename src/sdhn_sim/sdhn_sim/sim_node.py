@@ -1,21 +1,222 @@
-"""Simulator node (placeholder until the ROS stack lands): starts, logs, stops cleanly."""
+"""Simulator node ``sdhn_sim sim``: one environment stepped in lock-step with N actor processes.
+
+Publishes ``{team_ns}/robot_<i>/obs`` (one per robot), ``{team_ns}/state`` and
+``{team_ns}/episode``; subscribes to every ``{team_ns}/robot_<i>/action``. Before step 0 it waits
+until every obs topic has a subscriber (plus ``extra_subscribers``) and every action topic a
+publisher, then: publish step t, wait for the N actions of step t or ``step_deadline`` (missing ->
+stay, counted, logged), step, publish step t+1. The lock-step logic lives in
+:mod:`sdhn_sim.lockstep`; this file only moves messages. After ``episodes`` episodes (0 = never) it
+stops by itself with exit code 0; it exits 1 when the actors are not all matched within
+``start_timeout``."""
 
 from __future__ import annotations
 
+import array
+import functools
+import signal
+import time
+from collections import Counter
 from collections.abc import Sequence
 
+import numpy as np
 from rclpy.context import Context
+from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.timer import Timer
 
-from sdhn_sim.base_node import run_node
+from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
+from sdhn_sim.base_node import ConfigError, run_node
+from sdhn_sim.lockstep import EpisodeResult, Frame, LockstepSim, SimConfig, SimConfigError
+from sdhn_sim.qos import STEP
+
+LOG_EVERY_S = 2.0  # period of the progress line
 
 
 class SimNode(Node):
     def __init__(self, context: Context) -> None:
         super().__init__("sim", context=context)
-        self.env_name = self.declare_parameter("env", "maif-10").value
-        self.get_logger().info(f"ready: env={self.env_name}")
+        p = {
+            "team_ns": self.declare_parameter("team_ns", "/sdhn").value,
+            "env": self.declare_parameter("env", "maif-10").value,
+            "seed": self.declare_parameter("seed", 0).value,
+            "episodes": self.declare_parameter("episodes", 0).value,
+            "step_deadline": self.declare_parameter("step_deadline", 1.0).value,
+            "instance": self.declare_parameter("instance", -1).value,
+            "start_timeout": self.declare_parameter("start_timeout", 60.0).value,
+            "max_steps": self.declare_parameter("max_steps", 0).value,
+            "extra_subscribers": self.declare_parameter("extra_subscribers", 0).value,
+        }
+        ns = str(p.pop("team_ns")).rstrip("/")
+        if not ns.startswith("/"):
+            raise ConfigError(f"team_ns: must be an absolute namespace like /sdhn, got {ns!r}")
+        try:
+            cfg = SimConfig(env=str(p["env"]), seed=int(p["seed"]), episodes=int(p["episodes"]),
+                            step_deadline=float(p["step_deadline"]), instance=int(p["instance"]),
+                            start_timeout=float(p["start_timeout"]),
+                            max_steps=int(p["max_steps"]),
+                            extra_subscribers=int(p["extra_subscribers"]))
+            self.sim = LockstepSim(cfg)
+        except (SimConfigError, TypeError, ValueError) as e:
+            raise ConfigError(str(e)) from e
+        self.cfg = cfg
+        self.exit_code = 0
+        n = self.sim.num_robots
+        self.obs_pubs = [self.create_publisher(RobotObservation, f"{ns}/robot_{i}/obs", STEP)
+                         for i in range(n)]
+        self.state_pub = self.create_publisher(TeamState, f"{ns}/state", STEP)
+        self.episode_pub: Publisher = self.create_publisher(EpisodeSummary, f"{ns}/episode", STEP)
+        self.action_subs = [
+            self.create_subscription(RobotAction, f"{ns}/robot_{i}/action",
+                                     functools.partial(self.on_action, i), STEP)
+            for i in range(n)]
+        self.drops: Counter[str] = Counter()
+        self.started = False
+        self.t_start = time.monotonic()
+        self.deadline = float("inf")
+        self.steps_total = 0
+        self.t_last_log = 0.0
+        self.steps_at_last_log = 0
+        self._missed_logged = False
+        period = min(0.01, cfg.step_deadline / 4)
+        self.tick: Timer = self.create_timer(period, self.on_tick)
+        self.get_logger().info(
+            f"ready: env={cfg.env} robots={n} obs_size={self.sim.obs_size} seed={cfg.seed} "
+            f"episodes={cfg.episodes} step_deadline={cfg.step_deadline}s ns={ns}; waiting for "
+            f"{n} actors")
+
+    # -- start-up and deadline ---------------------------------------------------------------
+
+    def all_matched(self) -> bool:
+        extra = self.cfg.extra_subscribers
+        return (all(p.get_subscription_count() >= 1 + extra for p in self.obs_pubs)
+                and self.state_pub.get_subscription_count() >= extra
+                and all(s.get_publisher_count() >= 1 for s in self.action_subs))
+
+    def on_tick(self) -> None:
+        now = time.monotonic()
+        if not self.started:
+            if self.all_matched():
+                self.started = True
+                self.get_logger().info(
+                    f"all {self.sim.num_robots} actors matched after {now - self.t_start:.2f}s; "
+                    "starting episode 0")
+                self.t_start = self.t_last_log = now
+                self.publish(self.sim.reset())
+            elif now - self.t_start > self.cfg.start_timeout:
+                self.get_logger().error(
+                    f"start_timeout: not every actor matched within {self.cfg.start_timeout}s "
+                    f"(obs subscribers {[p.get_subscription_count() for p in self.obs_pubs]}, "
+                    f"action publishers {[s.get_publisher_count() for s in self.action_subs]})")
+                self.finish(1)
+            return
+        if now >= self.deadline:
+            missing = self.sim.missing()
+            if not self._missed_logged:
+                self._missed_logged = True
+                self.get_logger().warning(
+                    f"step deadline {self.cfg.step_deadline}s passed at episode "
+                    f"{self.sim.episode} step {self.sim.step}: robots {missing} take 'stay' "
+                    "(logged once; counts in TeamState.missed_actions and the episode summary)")
+            self.advance()
+        if now - self.t_last_log >= LOG_EVERY_S:
+            rate = (self.steps_total - self.steps_at_last_log) / (now - self.t_last_log)
+            self.get_logger().info(f"progress: episode {self.sim.episode} step {self.sim.step} "
+                                   f"{rate:.0f} steps/s missed={self.sim.total_missed}")
+            self.t_last_log, self.steps_at_last_log = now, self.steps_total
+
+    # -- lock-step -----------------------------------------------------------------------------
+
+    def on_action(self, robot: int, msg: RobotAction) -> None:
+        if not self.started or self.deadline == float("inf"):
+            self.drop("not_started", f"action from robot {robot} before step 0 or after the end")
+            return
+        rid = int(msg.robot_id)
+        if rid != robot:
+            self.drop("unknown_robot", f"robot_id {rid} on robot {robot}'s action topic")
+            return
+        kind = self.sim.submit(rid, int(msg.episode), int(msg.step), int(msg.action),
+                               int(msg.policy_version))
+        if kind is not None:
+            self.drop(kind, f"robot {rid} episode {msg.episode} step {msg.step} action "
+                      f"{msg.action}; now at episode {self.sim.episode} step {self.sim.step}")
+        elif self.sim.complete:
+            self.advance()
+
+    def advance(self) -> None:
+        frame, result = self.sim.advance()
+        self.steps_total += 1
+        self.publish(frame)
+        if result is not None:
+            self.publish_summary(result)
+            if self.sim.finished:
+                self.get_logger().info(f"done: {self.sim.episodes_done} episodes, "
+                                       f"{self.steps_total} steps, {self.sim.total_missed} missed "
+                                       f"actions, drops {dict(self.drops)}")
+                self.finish(0)
+                return
+            self.publish(self.sim.reset())
+
+    def publish(self, f: Frame) -> None:
+        stamp = self.get_clock().now().to_msg()
+        n = self.sim.num_robots
+        for i, pub in enumerate(self.obs_pubs):
+            m = RobotObservation()
+            m.header.stamp = stamp
+            m.header.frame_id = "map"
+            m.episode, m.step, m.robot_id, m.num_robots = f.episode, f.step, i, n
+            m.obs = array.array("f", np.ascontiguousarray(f.obs[i], dtype=np.float32).tobytes())
+            m.reward, m.terminated, m.truncated = float(f.reward), f.terminated, f.truncated
+            pub.publish(m)
+        s = TeamState()
+        s.header.stamp = stamp
+        s.header.frame_id = "map"
+        s.env_name, s.episode, s.step, s.num_robots = self.cfg.env, f.episode, f.step, n
+        s.state = array.array("f", np.ascontiguousarray(f.state, dtype=np.float32).tobytes())
+        s.positions = array.array("i", f.positions.astype(np.int32).tobytes())
+        s.team_reward, s.terminated, s.truncated = float(f.reward), f.terminated, f.truncated
+        s.makespan_so_far, s.missed_actions = f.step, f.missed
+        self.state_pub.publish(s)
+        self.deadline = (float("inf") if f.done
+                         else time.monotonic() + self.cfg.step_deadline)
+
+    def publish_summary(self, r: EpisodeResult) -> None:
+        m = EpisodeSummary()
+        m.header.stamp = self.get_clock().now().to_msg()
+        m.env_name, m.episode, m.length = r.env_name, r.episode, r.length
+        m.completed, m.makespan = r.completed, r.makespan or 0
+        m.episode_return, m.collisions = r.episode_return, r.collisions
+        m.formation_error, m.missed_actions = r.formation_error, r.missed_actions
+        m.policy_version = r.policy_version
+        self.episode_pub.publish(m)
+        makespan = r.makespan if r.completed else "NC"
+        self.get_logger().info(
+            f"episode {r.episode} done: makespan={makespan} length={r.length} "
+            f"return={r.episode_return:.2f} collisions={r.collisions} missed={r.missed_actions} "
+            f"policy_version={r.policy_version}")
+
+    def drop(self, kind: str, detail: str) -> None:
+        self.drops[kind] += 1
+        if self.drops[kind] == 1:
+            self.get_logger().warning(f"dropped action ({kind}): {detail} (logged once per kind)")
+
+    def finish(self, code: int) -> None:
+        """Stop the node: flush the summaries to their subscribers, then end the spin loop."""
+        self.exit_code = code
+        self.tick.cancel()
+        self.deadline = float("inf")
+        self.episode_pub.wait_for_all_acked(Duration(seconds=2))
+        # run_node's own stop path (flag set by its SIGTERM handler): the spin loop ends, on_stop
+        # runs, the node is destroyed; main() then returns exit_code.
+        signal.raise_signal(signal.SIGTERM)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_node(lambda context, _args: SimNode(context), argv)
+    made: list[SimNode] = []
+
+    def make(context: Context, _args: list[str]) -> SimNode:
+        made.append(SimNode(context))
+        return made[0]
+
+    code = run_node(make, argv)
+    return code or (made[0].exit_code if made else 0)

@@ -1,0 +1,137 @@
+"""One robot's decision loop, without ROS: validate an observation, keep the GRU state, act.
+
+The actor node feeds every observation message to :meth:`ActorCore.on_obs` and every weights
+message to :meth:`ActorCore.offer_weights`. Weights are validated when offered, but only swapped
+in at the next observation, so one step always runs on one set of weights, and the action carries
+the version that produced it. The GRU state goes back to zeros when a new episode starts
+(step 0 or a different episode counter). NumPy only: importing this never imports torch.
+
+    core = ActorCore(robot_id=2, num_robots=4, greedy=True, seed=0)
+    core.offer_weights(fmt, version, payload, sha256)    # raises WeightsError if rejected
+    out = core.on_obs(episode, step, robot_id, num_robots, obs)
+    if isinstance(out, Decision): publish(out.action, out.log_prob, out.version)
+    else: count(out.kind, out.reason)                    # a Drop
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.weights import WeightsError
+
+MAX_WEIGHTS_BYTES = 64 * 1024 * 1024
+"""Largest weights payload an actor accepts (the actor itself is ~100 kB)."""
+
+
+@dataclass(frozen=True)
+class Decision:
+    action: int
+    log_prob: float
+    version: int  # version of the weights that produced this action
+
+
+@dataclass(frozen=True)
+class Drop:
+    kind: str  # e.g. "wrong_obs_length"; counted per kind
+    reason: str  # human-readable detail for the log
+
+
+def weights_error_kind(reason: str) -> str:
+    """A short kind for a WeightsError reason (the node counts and logs once per kind)."""
+    text = reason.lower()
+    if "sha256" in text:
+        return "bad_sha256"
+    if "format" in text and "unknown" in text:
+        return "unknown_format"
+    if "shape" in text or "tensor" in text or "dtype" in text:
+        return "bad_tensors"
+    if "incompatible" in text:
+        return "incompatible_weights"
+    return "bad_weights"
+
+
+class ActorCore:
+    """The per-robot policy state machine (weights, GRU hidden state, RNG)."""
+
+    def __init__(self, robot_id: int, num_robots: int, greedy: bool, seed: int,
+                 runtime: ActorRuntime | None = None) -> None:
+        self.robot_id = robot_id
+        self.num_robots = num_robots
+        self.greedy = greedy
+        self.rng = np.random.default_rng([seed, robot_id])
+        self.runtime: ActorRuntime | None = None
+        self._pending: ActorRuntime | None = None
+        self.hidden: npt.NDArray[np.float32] | None = None
+        self.episode: int | None = None
+        self.last_step: int | None = None
+        if runtime is not None:
+            self._check(runtime)
+            self.runtime = runtime
+            self.hidden = runtime.initial_state(1)
+
+    @property
+    def version(self) -> int:
+        """Version of the weights in use (0 = none yet)."""
+        return self.runtime.version if self.runtime is not None else 0
+
+    @property
+    def has_weights(self) -> bool:
+        return self.runtime is not None or self._pending is not None
+
+    def _check(self, rt: ActorRuntime) -> None:
+        spec = rt.spec
+        if spec.use_robot_id and spec.num_robots != self.num_robots:
+            raise WeightsError(f"incompatible weights: trained for {spec.num_robots} robots "
+                               f"(one-hot id), this team has {self.num_robots}")
+
+    def offer_weights(self, fmt: str, version: int, payload: bytes, sha256: str) -> None:
+        """Validate new weights and queue them for the next step (WeightsError if rejected; the
+        old weights stay in use). Re-offering the queued or current version is a no-op."""
+        newest = self._pending or self.runtime
+        if newest is not None and newest.version == version and version > 0:
+            return
+        if len(payload) > MAX_WEIGHTS_BYTES:
+            raise WeightsError(f"oversized payload: {len(payload)} bytes > {MAX_WEIGHTS_BYTES}")
+        rt = ActorRuntime.from_bytes(fmt, version, payload, sha256)
+        self._check(rt)
+        self._pending = rt
+
+    def _swap(self) -> None:
+        if self._pending is None:
+            return
+        old, self.runtime, self._pending = self.runtime, self._pending, None
+        if self.hidden is None or old is None or old.hidden_size != self.runtime.hidden_size:
+            self.hidden = self.runtime.initial_state(1)
+
+    def on_obs(self, episode: int, step: int, robot_id: int, num_robots: int,
+               obs: npt.NDArray[np.float32], *, done: bool = False) -> Decision | Drop | None:
+        """Answer one observation; None when no answer is due (``done``: the episode's final
+        observation, which the simulator does not wait on)."""
+        if done:
+            return None
+        if robot_id != self.robot_id or num_robots != self.num_robots:
+            return Drop("wrong_robot", f"observation for robot {robot_id} of {num_robots}, "
+                        f"this is robot {self.robot_id} of {self.num_robots}")
+        self._swap()  # between steps: the previous step is answered, this one not yet started
+        if self.runtime is None or self.hidden is None:
+            return Drop("no_weights", "no policy weights yet (weights_file empty and nothing "
+                        "received on the weights topic)")
+        if obs.shape != (self.runtime.spec.obs_size,):
+            return Drop("wrong_obs_length", f"observation has length {obs.size}, the policy "
+                        f"expects {self.runtime.spec.obs_size}")
+        if not np.isfinite(obs).all():
+            return Drop("non_finite_obs", "observation contains NaN or Inf")
+        if step == 0 or episode != self.episode:
+            self.hidden = self.runtime.initial_state(1)
+            self.episode, self.last_step = episode, None
+        elif self.last_step is not None and step <= self.last_step:
+            return Drop("stale_step", f"step {step} of episode {episode} is not after the last "
+                        f"answered step {self.last_step}")
+        action, logp, self.hidden = self.runtime.act(obs[None], self.hidden, self.greedy,
+                                                     self.rng, robot_id=self.robot_id)
+        self.last_step = step
+        return Decision(int(action[0]), float(logp[0]), self.runtime.version)

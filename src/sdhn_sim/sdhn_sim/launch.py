@@ -1,0 +1,535 @@
+"""Multi-process launcher: one YAML file starts a whole sdhn graph, watches it, and stops it.
+
+    python -m sdhn_sim.launch configs/launch/deploy-tiny.yaml --set episodes=3 --set weights=RUN
+
+Starts the simulator, one actor *process* per robot, the trainer (mode ``train``) and the recorder
+(``recorder: true``), each through the ``ros2 run`` shim, all under ``team_ns``, each child's
+output in ``<run_dir>/logs/<name>.log``. While it runs it prints a status line (processes ready,
+episode, step rate, last makespan and return, weights version) built from the simulator's log
+lines, and appends every finished episode to ``<run_dir>/episodes.csv``. A child that exits is
+reported; under ``restart.policy: on-failure`` a child that failed (non-zero exit or killed) is
+restarted up to ``restart.max_restarts`` times. The run ends when the simulator finishes its
+episodes (exit 0), when the simulator fails for good, or on SIGINT/SIGTERM: every child then gets
+SIGINT (SIGKILL after ``stop_timeout``), and each exit code is reported. Exit code: 0 when every
+child stopped cleanly, 1 when one failed, 2 for an invalid configuration (named field, allowed
+values).
+
+Config file fields (every one optional; see :class:`LaunchConfig`)::
+
+    env: maif-10          mode: deploy | train       robots: 0 (= the env's team size)
+    weights: PATH         (deploy: actor .safetensors, or a run dir holding actor.safetensors)
+    seed: 0               episodes: 3 (0 = until stopped)      greedy: true
+    step_deadline: 1.0    max_steps: 0                         instance: -1
+    run_dir: runs/...     team_ns: /sdhn                       recorder: true
+    restart: {policy: never | on-failure, max_restarts: 3}
+    trainer: {algo: sdhn, rollout_steps: 128, config: "", resume: false}
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import ctypes
+import dataclasses
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import yaml
+
+from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+from sdhn_sim.envs.registry import RWARE_TASKS, env_names
+
+MODES = ("deploy", "train")
+RESTART_POLICIES = ("never", "on-failure")
+
+
+class LaunchConfigError(ValueError):
+    """Invalid launch configuration; the message names the field and the allowed values."""
+
+
+@dataclass
+class RestartConfig:
+    policy: str = "never"  # never | on-failure
+    max_restarts: int = 3  # per child
+
+
+@dataclass
+class TrainerConfig:
+    algo: str = "sdhn"  # sdhn | mappo
+    rollout_steps: int = 128  # team steps per update
+    config: str = ""  # optional YAML of the in-process trainer config
+    resume: bool = False
+
+
+@dataclass
+class LaunchConfig:
+    env: str = "maif-tiny"
+    mode: str = "deploy"
+    robots: int = 0  # 0 = the environment's team size (anything else must equal it)
+    weights: str = ""  # deploy: actor weights file or a run directory holding actor.safetensors
+    seed: int = 0
+    episodes: int = 0  # 0 = until stopped
+    greedy: bool = True  # deploy: argmax actions; train mode always samples
+    step_deadline: float = 1.0
+    max_steps: int = 0  # 0 = the environment's default
+    instance: int = -1
+    run_dir: str = ""  # "" = runs/<mode>-<env>-<time>
+    team_ns: str = "/sdhn"
+    recorder: bool = True
+    wait_for_observers: bool = True  # the sim waits for trainer/recorder subscriptions at step 0
+    start_timeout: float = 60.0
+    stop_timeout: float = 10.0  # seconds from SIGINT to SIGKILL when stopping a child
+    status_interval: float = 1.0  # seconds between status lines
+    restart: RestartConfig = field(default_factory=RestartConfig)
+    trainer: TrainerConfig = field(default_factory=TrainerConfig)
+
+
+def team_size(env: str) -> int:
+    if env in MAIF_CONFIGS:
+        return int(MAIF_CONFIGS[env].num_robots)
+    return int(RWARE_TASKS[env])
+
+
+def _coerce(name: str, tp: Any, value: Any) -> Any:
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no"):
+            return value.lower() in ("true", "1", "yes")
+        raise LaunchConfigError(f"{name}: expected true or false, got {value!r}")
+    try:
+        if tp is int and not isinstance(value, bool):
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(value)
+        if tp is float and not isinstance(value, bool):
+            return float(value)
+        if tp is str:
+            return "" if value is None else str(value)
+    except (TypeError, ValueError):
+        pass
+    raise LaunchConfigError(f"{name}: expected {tp.__name__}, got {value!r}")
+
+
+def set_field(obj: Any, dotted: str, value: Any, prefix: str = "") -> None:
+    head, _, rest = dotted.partition(".")
+    hints = typing.get_type_hints(type(obj))
+    full = f"{prefix}{head}"
+    if head not in hints:
+        raise LaunchConfigError(f"{full}: unknown field; allowed: {', '.join(hints)}")
+    sub = getattr(obj, head)
+    if dataclasses.is_dataclass(sub):
+        if rest:
+            set_field(sub, rest, value, f"{full}.")
+        elif isinstance(value, dict):
+            for k, v in value.items():
+                set_field(sub, str(k), v, f"{full}.")
+        else:
+            raise LaunchConfigError(f"{full}: expected a mapping, got {value!r}")
+    elif rest:
+        raise LaunchConfigError(f"{full}: is not a section")
+    else:
+        setattr(obj, head, _coerce(full, hints[head], value))
+
+
+def resolve_weights(path: str) -> Path:
+    """A weights file from a file path or a run directory (actor.safetensors in it)."""
+    p = Path(path)
+    if p.is_dir():
+        for candidate in (p / "actor.safetensors", *sorted(p.glob("**/actor*.safetensors"))[-1:]):
+            if candidate.is_file():
+                return candidate
+        raise LaunchConfigError(f"weights: no actor*.safetensors in directory {p}")
+    if not p.is_file():
+        raise LaunchConfigError(f"weights: {p} does not exist; allowed: an actor .safetensors "
+                                "file (with its .json sidecar) or a run directory holding one")
+    return p
+
+
+def validate(cfg: LaunchConfig) -> None:
+    if cfg.env not in env_names():
+        raise LaunchConfigError(f"env: unknown {cfg.env!r}; allowed: {', '.join(env_names())}")
+    if cfg.mode not in MODES:
+        raise LaunchConfigError(f"mode: got {cfg.mode!r}; allowed: {', '.join(MODES)}")
+    n = team_size(cfg.env)
+    if cfg.robots not in (0, n):
+        raise LaunchConfigError(f"robots: {cfg.env} has {n} robots, got {cfg.robots}; "
+                                f"allowed: 0 or {n}")
+    cfg.robots = n
+    if cfg.mode == "deploy":
+        if not cfg.weights:
+            raise LaunchConfigError("weights: deploy mode needs an actor weights file or run dir")
+        cfg.weights = str(resolve_weights(cfg.weights).resolve())
+    if cfg.restart.policy not in RESTART_POLICIES:
+        raise LaunchConfigError(f"restart.policy: got {cfg.restart.policy!r}; allowed: "
+                                f"{', '.join(RESTART_POLICIES)}")
+    for name in ("seed", "episodes", "max_steps", "restart.max_restarts",
+                 "trainer.rollout_steps"):
+        obj: Any = cfg
+        for part in name.split("."):
+            obj = getattr(obj, part)
+        if obj < 0:
+            raise LaunchConfigError(f"{name}: must be >= 0, got {obj}")
+    for name in ("step_deadline", "start_timeout", "stop_timeout", "status_interval"):
+        if not getattr(cfg, name) > 0:
+            raise LaunchConfigError(f"{name}: must be > 0 seconds, got {getattr(cfg, name)}")
+    if not cfg.team_ns.startswith("/"):
+        raise LaunchConfigError(f"team_ns: must be absolute (e.g. /sdhn), got {cfg.team_ns!r}")
+    if cfg.trainer.algo not in ("sdhn", "mappo"):
+        raise LaunchConfigError(f"trainer.algo: got {cfg.trainer.algo!r}; allowed: sdhn, mappo")
+    if not cfg.run_dir:
+        cfg.run_dir = f"runs/{cfg.mode}-{cfg.env}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
+    cfg = LaunchConfig()
+    if path is not None:
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except (OSError, yaml.YAMLError) as e:
+            raise LaunchConfigError(f"config: cannot read {path}: {e}") from e
+        if not isinstance(data, dict):
+            raise LaunchConfigError(f"config: {path} must hold a mapping of fields")
+        for k, v in data.items():
+            set_field(cfg, str(k), v)
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise LaunchConfigError(f"--set {item!r}: expected FIELD=VALUE")
+        set_field(cfg, key.strip(), yaml.safe_load(value) if value.strip() else "")
+    validate(cfg)
+    return cfg
+
+
+# --- children ---------------------------------------------------------------------------------
+
+
+def _param(name: str, value: Any) -> list[str]:
+    if isinstance(value, bool):
+        value = "true" if value else "false"
+    elif isinstance(value, str):
+        value = value if value else "''"
+    return ["-p", f"{name}:={value}"]
+
+
+@dataclass
+class ChildSpec:
+    name: str
+    package: str
+    executable: str
+    ros_args: list[str]
+    essential: bool = False  # the graph ends when this child ends (the simulator)
+
+    def command(self) -> list[str]:
+        return [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", self.package, self.executable,
+                "--ros-args", *self.ros_args]
+
+
+def graph(cfg: LaunchConfig) -> list[ChildSpec]:
+    """The children of one run, in start order."""
+    ns, run = cfg.team_ns.rstrip("/"), Path(cfg.run_dir).resolve()
+    common = _param("team_ns", ns)
+    children: list[ChildSpec] = []
+    if cfg.recorder:
+        children.append(ChildSpec("recorder", "sdhn_sim", "recorder", [
+            "-r", f"__ns:={ns}", *common, *_param("output", str(run / "recording.mcap"))]))
+    if cfg.mode == "train":
+        t = cfg.trainer
+        args = [*common, *_param("env", cfg.env), *_param("algo", t.algo),
+                *_param("seed", cfg.seed), *_param("run_dir", str(run / "trainer")),
+                *_param("rollout_steps", t.rollout_steps), *_param("resume", t.resume)]
+        if t.config:
+            args += _param("config", str(Path(t.config).resolve()))
+        children.append(ChildSpec("trainer", "sdhn_train", "trainer", ["-r", f"__ns:={ns}", *args]))
+    extra = (int(cfg.recorder) + int(cfg.mode == "train")) if cfg.wait_for_observers else 0
+    children.append(ChildSpec("sim", "sdhn_sim", "sim", [
+        "-r", f"__ns:={ns}", *common, *_param("env", cfg.env), *_param("seed", cfg.seed),
+        *_param("episodes", cfg.episodes), *_param("step_deadline", float(cfg.step_deadline)),
+        *_param("instance", cfg.instance), *_param("start_timeout", float(cfg.start_timeout)),
+        *_param("max_steps", cfg.max_steps), *_param("extra_subscribers", extra)],
+        essential=True))
+    weights = cfg.weights if cfg.mode == "deploy" else ""
+    greedy = cfg.greedy if cfg.mode == "deploy" else False
+    for i in range(cfg.robots):
+        children.append(ChildSpec(f"actor_{i}", "sdhn_policy", "actor", [
+            "-r", f"__ns:={ns}/robot_{i}", *common, *_param("robot_id", i),
+            *_param("num_robots", cfg.robots), *_param("weights_file", weights),
+            *_param("greedy", greedy), *_param("seed", cfg.seed)]))
+    return children
+
+
+def _die_with_parent() -> None:
+    """In the child, before exec: own process group (terminal Ctrl-C reaches only the launcher,
+    which then stops the children in order), and SIGTERM if the launcher dies."""
+    os.setsid()
+    with contextlib.suppress(OSError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+class Child:
+    def __init__(self, spec: ChildSpec, log_dir: Path, env: dict[str, str]) -> None:
+        self.spec = spec
+        self.log_path = log_dir / f"{spec.name}.log"
+        self.env = env
+        self.restarts = 0
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.log: IO[bytes] | None = None
+        self.ready = False
+        self._offset = 0
+        self.exit_code: int | None = None
+
+    def start(self) -> None:
+        self.log = open(self.log_path, "ab")  # noqa: SIM115 - lives as long as the child
+        self.proc = subprocess.Popen(self.spec.command(), stdout=self.log,
+                                     stderr=subprocess.STDOUT, env=self.env,
+                                     preexec_fn=_die_with_parent)  # noqa: PLW1509 - no threads
+        self.ready = False
+        self.exit_code = None
+
+    def poll(self) -> int | None:
+        if self.proc is None or self.exit_code is not None:
+            return self.exit_code
+        code = self.proc.poll()
+        if code is not None:
+            self.exit_code = code
+            if self.log is not None:
+                self.log.close()
+        return code
+
+    def new_lines(self) -> list[str]:
+        try:
+            with open(self.log_path, "rb") as f:
+                f.seek(self._offset)
+                data = f.read()
+        except OSError:
+            return []
+        cut = data.rfind(b"\n") + 1
+        self._offset += cut
+        lines = data[:cut].decode(errors="replace").splitlines()
+        if any("ready" in line for line in lines):
+            self.ready = True
+        return lines
+
+    def signal(self, sig: int) -> None:
+        if self.proc is not None and self.poll() is None:
+            self.proc.send_signal(sig)
+
+
+EPISODE_RE = re.compile(
+    r"episode (\d+) done: makespan=(\S+) length=(\d+) return=(\S+) collisions=(\d+) "
+    r"missed=(\d+) policy_version=(\d+)")
+PROGRESS_RE = re.compile(r"progress: episode (\d+) step (\d+) (\d+) steps/s")
+STARTED_RE = re.compile(r"actors matched after")
+CSV_FIELDS = ["episode", "makespan", "length", "return", "collisions", "missed_actions",
+              "policy_version", "wall_s"]
+
+
+def describe_exit(code: int | None) -> str:
+    if code is None:
+        return "running"
+    if code < 0:
+        return f"killed by {signal.Signals(-code).name}"
+    return f"exit {code}"
+
+
+class Launcher:
+    def __init__(self, cfg: LaunchConfig, out: IO[str] = sys.stdout) -> None:
+        self.cfg = cfg
+        self.out = out
+        self.run_dir = Path(cfg.run_dir).resolve()
+        self.log_dir = self.run_dir / "logs"
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ)
+        env.setdefault("ROS_LOG_DIR", str(self.run_dir / "ros_logs"))
+        env["PYTHONUNBUFFERED"] = "1"
+        env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+        self.children = [Child(spec, self.log_dir, env) for spec in graph(cfg)]
+        self.stop_requested = False
+        self.failed: list[str] = []
+        self.t0 = time.monotonic()
+        self.episodes: list[dict[str, Any]] = []
+        self.step_rate = 0.0
+        self.steps_done = 0
+        self.t_steps0: float | None = None
+        self.position = (0, 0)
+        self._tty = out.isatty()
+
+    def say(self, text: str) -> None:
+        if self._tty:
+            self.out.write("\r\033[K")
+        self.out.write(f"[launch] {text}\n")
+        self.out.flush()
+
+    def status(self) -> str:
+        ready = sum(c.ready for c in self.children)
+        last = self.episodes[-1] if self.episodes else None
+        ep, step = self.position
+        parts = [f"{ready}/{len(self.children)} ready", f"episode {ep} step {step}",
+                 f"{self.step_rate:.0f} steps/s", f"{len(self.episodes)} episodes done"]
+        if last:
+            parts += [f"last makespan {last['makespan']} return {float(last['return']):.1f}",
+                      f"weights v{last['policy_version']}"]
+        return " | ".join(parts)
+
+    def write_config(self) -> None:
+        (self.run_dir / "launch.yaml").write_text(
+            yaml.safe_dump(dataclasses.asdict(self.cfg), sort_keys=False))
+
+    def read_logs(self) -> None:
+        for child in self.children:
+            for line in child.new_lines():
+                if child.spec.name != "sim":
+                    continue
+                if STARTED_RE.search(line):
+                    self.t_steps0 = time.monotonic()
+                m = EPISODE_RE.search(line)
+                if m:
+                    row = dict(zip(CSV_FIELDS, [*m.groups(), f"{time.monotonic() - self.t0:.2f}"],
+                                   strict=True))
+                    self.episodes.append(row)
+                    self.steps_done += int(row["length"])
+                    if self.t_steps0 is not None:
+                        self.step_rate = self.steps_done / max(time.monotonic() - self.t_steps0,
+                                                               1e-6)
+                    self.position = (int(m.group(1)) + 1, 0)
+                    self._append_csv(row)
+                    self.say(f"episode {row['episode']}: makespan {row['makespan']}, return "
+                             f"{row['return']}, length {row['length']}, missed "
+                             f"{row['missed_actions']}, weights v{row['policy_version']}")
+                m = PROGRESS_RE.search(line)
+                if m:
+                    self.position = (int(m.group(1)), int(m.group(2)))
+                    self.step_rate = float(m.group(3))
+
+    def _append_csv(self, row: dict[str, Any]) -> None:
+        path = self.run_dir / "episodes.csv"
+        new = not path.exists()
+        with open(path, "a", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+            if new:
+                w.writeheader()
+            w.writerow(row)
+
+    def on_signal(self, signum: int, _frame: Any) -> None:
+        self.stop_requested = True
+
+    def run(self) -> int:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, self.on_signal)
+        self.write_config()
+        rec = "on" if self.cfg.recorder else "off"
+        self.say(f"run dir {self.run_dir}; mode {self.cfg.mode}, env {self.cfg.env}, "
+                 f"{self.cfg.robots} actor processes, recorder {rec}")
+        for child in self.children:
+            child.start()
+        self.say(f"started {len(self.children)} processes; logs in {self.log_dir}")
+        self.say("pids: " + " ".join(f"{c.spec.name}={c.proc.pid}" for c in self.children
+                                      if c.proc is not None))
+        next_status = time.monotonic() + self.cfg.status_interval
+        finished = False
+        while not self.stop_requested and not finished:
+            time.sleep(0.1)
+            self.read_logs()
+            finished = self.check_children()
+            if time.monotonic() >= next_status:
+                next_status += self.cfg.status_interval
+                if self._tty:
+                    self.out.write("\r\033[K" + self.status())
+                    self.out.flush()
+                else:
+                    self.say(self.status())
+        if self.stop_requested:
+            self.say("stop requested: stopping every child")
+        return self.stop_all()
+
+    def check_children(self) -> bool:
+        """Report and restart exited children; True when the run is over."""
+        for child in self.children:
+            if child.exit_code is not None:
+                continue
+            code = child.poll()
+            if code is None:
+                continue
+            name = child.spec.name
+            if child.spec.essential and code == 0:
+                self.say(f"{name} finished ({describe_exit(code)})")
+                return True
+            self.say(f"{name} (pid {child.proc.pid if child.proc else '?'}) ended: "
+                     f"{describe_exit(code)}; log {child.log_path}")
+            restart = (self.cfg.restart.policy == "on-failure" and code != 0
+                       and child.restarts < self.cfg.restart.max_restarts)
+            if restart:
+                child.restarts += 1
+                child.start()
+                self.say(f"restarted {name} ({child.restarts}/{self.cfg.restart.max_restarts}), "
+                         f"pid {child.proc.pid if child.proc else '?'}")
+                continue
+            if code != 0:
+                self.failed.append(name)
+            if child.spec.essential:
+                return True
+        return False
+
+    def stop_all(self) -> int:
+        # Observers (recorder) stop last so they see everything the others published.
+        order = sorted(self.children, key=lambda c: c.spec.name == "recorder")
+        for group in ([c for c in order if c.spec.name != "recorder"],
+                      [c for c in order if c.spec.name == "recorder"]):
+            for child in group:
+                child.signal(signal.SIGINT)
+            deadline = time.monotonic() + self.cfg.stop_timeout
+            for child in group:
+                if child.proc is None:
+                    continue
+                try:
+                    child.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    self.say(f"{child.spec.name} did not stop in {self.cfg.stop_timeout}s: SIGKILL")
+                    child.proc.kill()
+                    child.proc.wait()
+                child.poll()
+        self.read_logs()
+        codes = {c.spec.name: c.exit_code for c in self.children}
+        bad = sorted(set(self.failed) | {n for n, c in codes.items() if c != 0})
+        summary = ", ".join(f"{n}={describe_exit(c)}" for n, c in codes.items())
+        self.say(f"exit codes: {summary}")
+        restarts = {c.spec.name: c.restarts for c in self.children if c.restarts}
+        if restarts:
+            self.say(f"restarts: {restarts}")
+        self.say(f"{len(self.episodes)} episodes; "
+                 + (f"failed: {', '.join(bad)}" if bad else "every child stopped cleanly"))
+        if (self.run_dir / "recording.mcap").exists():
+            self.say(f"recording: {self.run_dir / 'recording.mcap'}")
+        return 1 if bad else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="launch", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("config", type=Path, nargs="?", help="launch YAML (see configs/launch/)")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="override a field, e.g. --set episodes=3 --set restart.policy=on-failure")
+    p.add_argument("--print-config", action="store_true", help="print the final config and exit")
+    args = p.parse_args(argv)
+    try:
+        cfg = load_config(args.config, args.set)
+    except LaunchConfigError as e:
+        print(f"launch: invalid configuration: {e}", file=sys.stderr)
+        return 2
+    if args.print_config:
+        print(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False))
+        return 0
+    return Launcher(cfg).run()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

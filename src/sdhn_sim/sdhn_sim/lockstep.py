@@ -1,0 +1,227 @@
+"""The simulator's lock-step logic, without ROS: one environment, N robots, one step at a time.
+
+The simulator node publishes a :class:`Frame` (every robot's observation + the team state), feeds
+every incoming action to :meth:`LockstepSim.submit`, and calls :meth:`LockstepSim.advance` once
+all N actions of the step are in or the deadline passed. A robot whose action is missing then
+takes ``stay`` (action 0); the miss is counted per step and per episode. ``advance`` returns the
+next frame and, when the episode ended, an :class:`EpisodeResult`; the node then publishes the
+final frame (terminated/truncated set, actors do not answer it), the summary, and asks for the
+next episode's first frame with :meth:`LockstepSim.reset`.
+
+    sim = LockstepSim(SimConfig(env="maif-tiny", seed=1))
+    frame = sim.reset()
+    for i in range(sim.num_robots):
+        sim.submit(i, frame.episode, frame.step, action=1, version=3)
+    frame, result = sim.advance()
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from sdhn_sim.envs import make_single_env
+from sdhn_sim.envs.registry import env_names
+from sdhn_sim.envs.single import SingleEnv
+
+STAY = 0
+
+# Why an action was dropped; each kind is counted and logged once by the node.
+DROP_KINDS = ("unknown_robot", "stale_step", "future_step", "duplicate", "out_of_range")
+
+
+class SimConfigError(ValueError):
+    """A simulator setting is invalid; the message names it and the allowed values."""
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The simulator's settings (the ROS parameters of ``sdhn_sim sim`` mirror these fields)."""
+
+    env: str = "maif-10"  # registry name
+    seed: int = 0  # seed of the environment's instance stream
+    episodes: int = 0  # episodes to run, then stop; 0 = until stopped
+    step_deadline: float = 1.0  # seconds to wait for all N actions of a step
+    instance: int = -1  # MAIF instance to replay every episode; -1 = draw per episode
+    start_timeout: float = 60.0  # seconds to wait for every actor to be matched before step 0
+    max_steps: int = 0  # episode step limit; 0 = the environment's default
+    extra_subscribers: int = 0  # other nodes (trainer, recorder) to wait for before step 0
+
+    def validate(self) -> None:
+        """Raise SimConfigError naming the first bad field."""
+        if self.env not in env_names():
+            raise SimConfigError(f"env: unknown environment {self.env!r}; allowed: {env_names()}")
+        if self.seed < 0:
+            raise SimConfigError(f"seed: must be >= 0, got {self.seed}; allowed: integers >= 0")
+        if self.episodes < 0:
+            raise SimConfigError(f"episodes: must be >= 0, got {self.episodes}; allowed: "
+                                 "0 (until stopped) or a positive count")
+        for name in ("step_deadline", "start_timeout"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise SimConfigError(f"{name}: got {value}; allowed: finite seconds > 0")
+        if self.instance < -1:
+            raise SimConfigError(f"instance: got {self.instance}; allowed: -1 (draw per episode) "
+                                 "or an instance id >= 0")
+        if self.instance >= 0 and not self.env.startswith("maif"):
+            raise SimConfigError(f"instance: fixed instances exist only for MAIF, not {self.env}; "
+                                 "allowed: -1")
+        if self.max_steps < 0:
+            raise SimConfigError(f"max_steps: must be >= 0, got {self.max_steps}; allowed: "
+                                 "0 (environment default) or a positive step limit")
+        if self.extra_subscribers < 0:
+            raise SimConfigError(f"extra_subscribers: got {self.extra_subscribers}; "
+                                 "allowed: integers >= 0")
+
+
+@dataclass(frozen=True)
+class Frame:
+    """What the simulator publishes at one lock-step (observations of every robot + team state)."""
+
+    episode: int
+    step: int
+    obs: npt.NDArray[np.float32]  # [N, D]
+    state: npt.NDArray[np.float32]  # [S]
+    positions: npt.NDArray[np.int32]  # [N, 2] grid cells (x, y); [0, 2] when unknown
+    reward: float  # team reward of the transition into this step (0 at step 0)
+    terminated: bool
+    truncated: bool
+    missed: int  # robots that took 'stay' because their action missed the deadline
+
+    @property
+    def done(self) -> bool:
+        return self.terminated or self.truncated
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """Metrics of one finished episode (the fields of ``sdhn_msgs/EpisodeSummary``)."""
+
+    env_name: str
+    episode: int
+    length: int
+    completed: bool
+    makespan: int | None  # None = not completed (NC)
+    episode_return: float
+    collisions: int
+    formation_error: float
+    missed_actions: int
+    policy_version: int
+    actions: list[list[int]] = field(default_factory=list)  # [length][N] actions applied
+
+
+def _positions(env: SingleEnv) -> npt.NDArray[np.int32]:
+    try:
+        return np.asarray(env.positions, dtype=np.int32).reshape(-1, 2)
+    except NotImplementedError:
+        raw = getattr(env.env, "_raw", None)  # RWARE: the Warehouse's agents carry x, y
+        if raw:
+            return np.array([[a.x, a.y] for a in raw[0].agents], dtype=np.int32).reshape(-1, 2)
+        return np.zeros((0, 2), dtype=np.int32)
+
+
+class LockstepSim:
+    """One environment stepped in lock-step from per-robot actions that arrive one by one."""
+
+    def __init__(self, cfg: SimConfig, keep_actions: bool = False) -> None:
+        cfg.validate()
+        self.cfg = cfg
+        overrides: dict[str, Any] = {}
+        if cfg.max_steps > 0:
+            overrides["max_steps"] = cfg.max_steps
+        if cfg.instance >= 0:
+            overrides["instance_ids"] = [cfg.instance]
+        try:
+            self.env = make_single_env(cfg.env, seed=cfg.seed, **overrides)
+        except ValueError as e:  # e.g. instance id out of range
+            raise SimConfigError(f"instance: {e}") from e
+        self.num_robots = self.env.num_robots
+        self.obs_size = self.env.obs_size
+        self.num_actions = self.env.num_actions
+        self.keep_actions = keep_actions
+        self.episode = -1
+        self.step = 0
+        self.frame: Frame | None = None
+        self._actions = np.zeros(self.num_robots, dtype=np.int64)
+        self._got = np.zeros(self.num_robots, dtype=bool)
+        self._ep_missed = 0
+        self._ep_version = 0
+        self._ep_actions: list[list[int]] = []
+        self.episodes_done = 0
+        self.total_missed = 0
+
+    @property
+    def finished(self) -> bool:
+        """True once the configured number of episodes has run (never when episodes == 0)."""
+        return self.cfg.episodes > 0 and self.episodes_done >= self.cfg.episodes
+
+    def reset(self) -> Frame:
+        """Start the next episode; returns its step-0 frame."""
+        obs, state = self.env.reset()
+        self.episode += 1
+        self.step = 0
+        self._ep_missed = 0
+        self._ep_version = 0
+        self._ep_actions = []
+        self._clear()
+        self.frame = Frame(self.episode, 0, obs, state, _positions(self.env), 0.0, False, False, 0)
+        return self.frame
+
+    def _clear(self) -> None:
+        self._actions[:] = STAY
+        self._got[:] = False
+
+    def submit(self, robot_id: int, episode: int, step: int, action: int,
+               version: int) -> str | None:
+        """Take one robot's action for the current step; returns a drop kind or None if taken."""
+        if not 0 <= robot_id < self.num_robots:
+            return "unknown_robot"
+        if (episode, step) < (self.episode, self.step):
+            return "stale_step"
+        if (episode, step) > (self.episode, self.step):
+            return "future_step"
+        if self._got[robot_id]:
+            return "duplicate"
+        if not 0 <= action < self.num_actions:
+            return "out_of_range"
+        self._actions[robot_id] = action
+        self._got[robot_id] = True
+        self._ep_version = max(self._ep_version, int(version))
+        return None
+
+    @property
+    def complete(self) -> bool:
+        """Every robot's action for the current step is in."""
+        return bool(self._got.all())
+
+    def missing(self) -> list[int]:
+        return [int(i) for i in np.flatnonzero(~self._got)]
+
+    def advance(self) -> tuple[Frame, EpisodeResult | None]:
+        """Step the world with the actions in (missing -> stay); returns the next frame and, when
+        the episode ended, its result (call :meth:`reset` for the next one)."""
+        missed = int((~self._got).sum())
+        self._ep_missed += missed
+        self.total_missed += missed
+        if self.keep_actions:
+            self._ep_actions.append([int(a) for a in self._actions])
+        res = self.env.step(self._actions.copy())
+        self.step += 1
+        self._clear()
+        self.frame = Frame(self.episode, self.step, res.obs, res.state, _positions(self.env),
+                           res.reward, res.terminated, res.truncated, missed)
+        result = None
+        if res.terminated or res.truncated:
+            ep = res.info["episode"]
+            self.episodes_done += 1
+            result = EpisodeResult(
+                env_name=self.cfg.env, episode=self.episode, length=ep.length,
+                completed=bool(ep.success), makespan=ep.makespan,
+                episode_return=float(ep.episode_return), collisions=int(ep.collisions),
+                formation_error=float(ep.formation_error), missed_actions=self._ep_missed,
+                policy_version=self._ep_version, actions=self._ep_actions)
+        return self.frame, result

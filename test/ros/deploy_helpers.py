@@ -1,0 +1,151 @@
+"""Shared pieces of the deployment tests: exported weights, node commands, an in-process rollout,
+and an rclpy observer node that records what the graph publishes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .processes import ROS2
+
+TEAM_NS = "/sdhn"
+
+
+def export_weights(root: Path, env: str = "maif-tiny", seed: int = 1) -> Path:
+    """Actor weights exported by a very short in-process ``train`` run (a real export)."""
+    run = root / "train"
+    done = subprocess.run(
+        [sys.executable, "-m", "sdhn_train.cli", "--env", env, "--seed", str(seed),
+         "--total-steps", "256", "--num-envs", "2", "--run-name", "t", "--no-progress",
+         "--set", f"log.root={run}", "--set", "ppo.rollout_len=32", "--set", "eval.interval=0",
+         "--set", "log.tensorboard=false", "--set", "ppo.num_minibatches=2"],
+        capture_output=True, text=True, timeout=180, check=False)
+    assert done.returncode == 0, f"train failed:\n{done.stdout}\n{done.stderr}"
+    path = run / "t" / "actor.safetensors"
+    assert path.is_file(), done.stderr
+    return path
+
+
+def sim_cmd(env: str = "maif-tiny", **params: Any) -> list[str]:
+    args = [*ROS2, "run", "sdhn_sim", "sim", "--ros-args", "-r", f"__ns:={TEAM_NS}",
+            "-p", f"env:={env}"]
+    for k, v in params.items():
+        args += ["-p", f"{k}:={_ros(v)}"]
+    return args
+
+
+def actor_cmd(i: int, n: int, **params: Any) -> list[str]:
+    args = [*ROS2, "run", "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:={TEAM_NS}/robot_{i}",
+            "-p", f"robot_id:={i}", "-p", f"num_robots:={n}"]
+    for k, v in params.items():
+        args += ["-p", f"{k}:={_ros(v)}"]
+    return args
+
+
+def _ros(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return str(v)
+
+
+def inprocess_greedy_actions(weights: Path, env: str, seed: int, episodes: int,
+                             max_steps: int) -> list[list[list[int]]]:
+    """[episode][step][robot] greedy actions of an in-process rollout: ``SingleEnv`` + the NumPy
+    runtime, each robot stepping its own GRU from its own observation row."""
+    from sdhn_policy.actor_runtime import ActorRuntime
+    from sdhn_sim.envs import make_single_env
+
+    rt = ActorRuntime.from_file(weights)
+    sim = make_single_env(env, seed=seed, max_steps=max_steps)
+    rng = np.random.default_rng(0)
+    out: list[list[list[int]]] = []
+    for _ in range(episodes):
+        obs, _ = sim.reset()
+        hs = [rt.initial_state(1) for _ in range(sim.num_robots)]
+        steps: list[list[int]] = []
+        while True:
+            acts = []
+            for i in range(sim.num_robots):
+                a, _, hs[i] = rt.act(obs[i][None], hs[i], True, rng, robot_id=i)
+                acts.append(int(a[0]))
+            steps.append(acts)
+            res = sim.step(np.array(acts))
+            obs = res.obs
+            if res.terminated or res.truncated:
+                break
+        out.append(steps)
+    return out
+
+
+@dataclass
+class Seen:
+    actions: dict[tuple[int, int, int], tuple[int, int]] = field(default_factory=dict)
+    episodes: list[Any] = field(default_factory=list)
+    obs_count: int = 0
+    state_count: int = 0
+
+
+@contextmanager
+def observer(num_robots: int) -> Iterator[tuple[Any, Seen, Any]]:
+    """An rclpy node in the test process that subscribes to every obs, action, state and episode
+    topic (the simulator counts it with ``extra_subscribers=1``). Yields (node, seen, spin)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.experimental import EventsExecutor
+
+    from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
+    from sdhn_sim.qos import STEP
+
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("test_observer", context=context)
+    ex = EventsExecutor(context=context)
+    ex.add_node(node)
+    seen = Seen()
+
+    def on_action(m: Any) -> None:
+        key = (int(m.episode), int(m.step), int(m.robot_id))
+        assert key not in seen.actions, f"duplicate action {key}"
+        seen.actions[key] = (int(m.action), int(m.policy_version))
+
+    def on_obs(_m: Any) -> None:
+        seen.obs_count += 1
+
+    def on_state(_m: Any) -> None:
+        seen.state_count += 1
+
+    subs = [node.create_subscription(RobotAction, f"{TEAM_NS}/robot_{i}/action", on_action, STEP)
+            for i in range(num_robots)]
+    subs += [node.create_subscription(RobotObservation, f"{TEAM_NS}/robot_{i}/obs", on_obs, STEP)
+             for i in range(num_robots)]
+    subs.append(node.create_subscription(TeamState, f"{TEAM_NS}/state", on_state, STEP))
+    subs.append(node.create_subscription(EpisodeSummary, f"{TEAM_NS}/episode",
+                                         seen.episodes.append, STEP))
+
+    def spin(seconds: float, until: Any = None) -> bool:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.02)
+            if until is not None and until():
+                return True
+        return until is None
+
+    try:
+        yield node, seen, spin
+    finally:
+        ex.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def action_table(seen: Seen, episode: int, num_robots: int) -> list[list[int]]:
+    steps = sorted({s for (e, s, _r) in seen.actions if e == episode})
+    return [[seen.actions[(episode, s, r)][0] for r in range(num_robots)] for s in steps]

@@ -1,0 +1,45 @@
+"""Deployment equals the in-process policy: with the same exported weights, seed and greedy
+actions, the ROS run (simulator + one actor process per robot) applies exactly the action
+sequence of an in-process rollout, step for step, over two episodes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from .deploy_helpers import (
+    TEAM_NS,
+    action_table,
+    actor_cmd,
+    export_weights,
+    inprocess_greedy_actions,
+    observer,
+    sim_cmd,
+)
+from .processes import node_processes
+
+N, SEED, EPISODES, MAX_STEPS = 4, 5, 2, 40
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return export_weights(tmp_path_factory.mktemp("weights"), seed=2)
+
+
+def test_ros_deploy_actions_equal_inprocess_greedy_rollout(weights: Path) -> None:
+    expected = inprocess_greedy_actions(weights, "maif-tiny", SEED, EPISODES, MAX_STEPS)
+    actors = [actor_cmd(i, N, weights_file=weights, greedy=True) for i in range(N)]
+    with observer(N) as (node, seen, spin), node_processes(*actors) as procs:
+        assert spin(30, lambda: all(node.count_publishers(f"{TEAM_NS}/robot_{i}/action") >= 1
+                                    for i in range(N))), [p.output for p in procs]
+        with node_processes(sim_cmd(seed=SEED, episodes=EPISODES, max_steps=MAX_STEPS,
+                                    extra_subscribers=1)) as (sim,):
+            assert spin(60, lambda: len(seen.episodes) == EPISODES), sim.output
+            sim.proc.wait(timeout=10)
+    assert all(ep.missed_actions == 0 for ep in seen.episodes), sim.output
+    for e in range(EPISODES):
+        got = action_table(seen, e, N)
+        assert len(got) == len(expected[e]) == seen.episodes[e].length
+        for t, (a, b) in enumerate(zip(got, expected[e], strict=True)):
+            assert a == b, f"episode {e} step {t}: ROS actions {a}, in-process {b}"

@@ -1,0 +1,100 @@
+"""The multi-process launcher: a small deploy graph (sim + 4 actor processes on maif-tiny) runs
+its episodes and ends by itself; SIGTERM stops every child with exit code 0; a killed actor is
+reported, and restarted under ``restart.policy: on-failure``."""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import signal
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from .deploy_helpers import export_weights
+from .processes import NodeProcess, node_processes
+
+LAUNCH = [sys.executable, "-m", "sdhn_sim.launch", "configs/launch/deploy-tiny.yaml"]
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return export_weights(tmp_path_factory.mktemp("weights"), seed=3)
+
+
+def launch(weights: Path, run_dir: Path, *sets: str) -> list[str]:
+    args = [*LAUNCH, "--set", f"weights={weights}", "--set", f"run_dir={run_dir}",
+            "--set", "recorder=false", "--set", "max_steps=40", "--set", "status_interval=0.5"]
+    for item in sets:
+        args += ["--set", item]
+    return args
+
+
+def pid_of(launcher: NodeProcess, name: str) -> int:
+    for line in launcher.lines:
+        m = re.search(rf"\b{name}=(\d+)", line)
+        if "pids:" in line and m:
+            return int(m.group(1))
+    raise AssertionError(f"no pid of {name}:\n{launcher.output}")
+
+
+def wait_after(proc: NodeProcess, first: str, then: str, timeout: float) -> bool:
+    """True once a line containing ``then`` follows a line containing ``first``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        lines = list(proc.lines)
+        start = next((k for k, line in enumerate(lines) if first in line), None)
+        if start is not None and any(then in line for line in lines[start + 1:]):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_runs_its_episodes_and_ends_cleanly(weights: Path, tmp_path: Path) -> None:
+    with node_processes(launch(weights, tmp_path, "episodes=2")) as (launcher,):
+        launcher.proc.wait(timeout=60)
+    assert launcher.proc.returncode == 0, launcher.output
+    assert "every child stopped cleanly" in launcher.output
+    rows = list(csv.DictReader((tmp_path / "episodes.csv").read_text().splitlines()))
+    assert [r["episode"] for r in rows] == ["0", "1"]
+    assert all(r["missed_actions"] == "0" and r["length"] == "40" for r in rows), rows
+    logs = {p.name for p in (tmp_path / "logs").iterdir()}
+    assert logs == {"sim.log", *(f"actor_{i}.log" for i in range(4))}
+
+
+@pytest.mark.parametrize("policy", ["on-failure", "never"])
+def test_killed_child_is_reported_and_sigterm_stops_all(weights: Path, tmp_path: Path,
+                                                        policy: str) -> None:
+    with node_processes(launch(weights, tmp_path, "episodes=0",
+                               f"restart.policy={policy}")) as (launcher,):
+        assert launcher.wait_for_line("episode 0:", timeout=40), launcher.output
+        os.kill(pid_of(launcher, "actor_2"), signal.SIGKILL)
+        assert launcher.wait_for_line("actor_2 (pid", timeout=10), launcher.output
+        assert "killed by SIGKILL" in launcher.output
+        if policy == "on-failure":
+            assert launcher.wait_for_line("restarted actor_2 (1/3)", timeout=10), launcher.output
+            # The restarted actor answers again: a later episode has no missed actions.
+            assert wait_after(launcher, "restarted actor_2", "missed 0,", timeout=30), (
+                launcher.output)
+        code = launcher.stop(signal.SIGTERM, timeout=20)
+    out = launcher.output
+    assert "exit codes:" in out, out
+    final = next(line for line in out.splitlines() if "exit codes:" in line)
+    if policy == "on-failure":
+        assert code == 0, out
+        assert final.count("exit 0") == 5, final
+        assert "every child stopped cleanly" in out
+    else:
+        assert code == 1, out
+        assert "actor_2=killed by SIGKILL" in final and final.count("exit 0") == 4, final
+        assert "failed: actor_2" in out
+
+
+def test_bad_config_exits_2_naming_the_field(tmp_path: Path) -> None:
+    with node_processes([*LAUNCH, "--set", "mode=fly"]) as (launcher,):
+        launcher.proc.wait(timeout=30)
+    assert launcher.proc.returncode == 2
+    assert "mode:" in launcher.output and "allowed: deploy, train" in launcher.output

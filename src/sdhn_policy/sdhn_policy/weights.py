@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import struct
 import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -127,7 +128,8 @@ def validate_tensors(spec: ActorSpec, tensors: dict[str, np.ndarray]) -> Tensors
     extra = sorted(set(tensors) - set(expected))
     if missing or extra:
         raise WeightsError(
-            f"tensor names do not match the spec: missing {missing}, unexpected {extra}")
+            f"tensor names do not match the spec: missing {missing}, unexpected {extra}"
+        )
     out: Tensors = {}
     for name, shape in expected.items():
         a = tensors[name]
@@ -152,8 +154,22 @@ def encode_actor(spec: ActorSpec, tensors: dict[str, np.ndarray], version: int) 
         "version": str(int(version)),
         "spec": json.dumps(spec.to_json(), sort_keys=True),
     }
-    payload = st_save(arrays, metadata=metadata)
+    payload = canonical_safetensors(st_save(arrays, metadata=metadata))
     return ActorWeights(ACTOR_FORMAT, int(version), payload, sha256_hex(payload))
+
+
+def canonical_safetensors(payload: bytes) -> bytes:
+    """The same safetensors blob with its JSON header in sorted key order.
+
+    safetensors writes metadata from a hash map, in an order that changes from call to call, so
+    identical weights would get different bytes and checksums. Data offsets in the header are
+    relative to the data section, so rewriting the header alone keeps the blob valid.
+    """
+    (length,) = struct.unpack("<Q", payload[:8])
+    header = json.loads(payload[8 : 8 + length])
+    text = json.dumps(header, sort_keys=True, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 8)  # the format pads the header to 8-byte alignment
+    return struct.pack("<Q", len(text)) + text + payload[8 + length :]
 
 
 def _read_metadata(payload: bytes) -> dict[str, str]:
@@ -184,7 +200,8 @@ def decode_actor(fmt: str, version: int, payload: bytes, sha256: str) -> tuple[A
     meta = _read_metadata(payload)
     if meta.get("format") != ACTOR_FORMAT:
         raise WeightsError(
-            f"payload metadata format is {meta.get('format')!r}, not {ACTOR_FORMAT!r}")
+            f"payload metadata format is {meta.get('format')!r}, not {ACTOR_FORMAT!r}"
+        )
     if meta.get("version") != str(int(version)):
         raise WeightsError(f"payload version {meta.get('version')} != message version {version}")
     try:
@@ -234,8 +251,12 @@ def save_actor_file(path: str | os.PathLike[str], blob: ActorWeights) -> None:
     """Write ``<stem>.safetensors`` and its ``<stem>.json`` sidecar atomically."""
     spec, _ = decode_weights(blob)  # never write something we could not read back
     atomic_write_bytes(path, blob.payload)
-    side = {"format": blob.format, "version": blob.version, "sha256": blob.sha256,
-            "spec": spec.to_json()}
+    side = {
+        "format": blob.format,
+        "version": blob.version,
+        "sha256": blob.sha256,
+        "spec": spec.to_json(),
+    }
     atomic_write_bytes(sidecar_path(path), json.dumps(side, indent=2).encode() + b"\n")
 
 
@@ -244,8 +265,9 @@ def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
     path = Path(path)
     try:
         side = json.loads(sidecar_path(path).read_text())
-        blob = ActorWeights(str(side["format"]), int(side["version"]), path.read_bytes(),
-                            str(side["sha256"]))
+        blob = ActorWeights(
+            str(side["format"]), int(side["version"]), path.read_bytes(), str(side["sha256"])
+        )
     except FileNotFoundError as e:
         raise WeightsError(f"missing weights file: {e.filename}") from e
     except (KeyError, TypeError, ValueError) as e:

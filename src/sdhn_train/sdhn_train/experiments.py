@@ -293,6 +293,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jobs", type=int, default=None, help="runs at once (default: CPU cores)")
     p.add_argument("--list", action="store_true", help="print the runs and their state, run none")
     args = p.parse_args(argv)
+
+    def _terminated(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt  # stop the runs this process started, then exit
+
+    signal.signal(signal.SIGTERM, _terminated)
     try:
         runs = load_suite(args.suite, args.budget)
         logdir = args.logdir or Path("runs") / f"{runs[0].suite}-{args.budget}"

@@ -32,7 +32,7 @@ def _rollout(n: int, t: int = 3, b: int = 2, d: int = 57) -> Rollout:
                    np.zeros((b, n, 64), np.float32), None)
 
 
-def write_run(root: Path, task: str, method: str, seed: int, steps: int = 4000,
+def write_run(root: Path, task: str, method: str, seed: int, *, steps: int = 4000,
               completes: bool = True) -> Path:
     run = root / f"{task}__{method}__{seed}"
     run.mkdir(parents=True)
@@ -98,7 +98,7 @@ def test_ph_snapshot_only_for_hypergraph_critics(tmp_path: Path) -> None:
     assert path is not None
     with np.load(path) as z:
         assert z["ph_last"].shape == (4, 3) and z["ph_mean"].shape == (4, 3)
-        assert 0.0 <= float(z["ph_last"].min()) and float(z["ph_last"].max()) <= 1.0
+        assert float(z["ph_last"].min()) >= 0.0 and float(z["ph_last"].max()) <= 1.0
 
 
 def test_refuses_empty_dir(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -130,5 +130,5 @@ def test_refuses_non_runs(logdir: Path) -> None:
     (logdir / "notes.txt").unlink()
     (logdir / "half").mkdir()
     (logdir / "half" / "config.yaml").write_text("{}")
-    with pytest.raises(FigureError, match="missing metrics.csv"):
+    with pytest.raises(FigureError, match=r"missing metrics\.csv"):
         load_runs(logdir)

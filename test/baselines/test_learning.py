@@ -7,7 +7,7 @@ returns -47.3; the do-nothing policy (every robot stays) -29.8; the untrained gr
 Measured on 2 shared, heavily loaded cores (load 6-9), greedy return after SETTINGS' steps:
 - dicg, 65,536 steps: seed 1 -10.6 (+36.7 over random), ~110 s under load;
 - qmix, 40,960 steps: seeds 1/2/3 -32.9 / -20.6 / -29.5 (+14.4 / +26.7 / +17.8), 60-160 s;
-- hgcn_mix, 40,960 steps: see RETURN_MARGIN.
+- hgcn_mix, 40,960 steps: seed 1 -17.3 (+30.0), 270 s at load 9-18.
 At this budget the value-mixing methods mostly learn to stop colliding (about the do-nothing
 level) and only sometimes beat it, so their margin (10) is below the do-nothing policy's: the
 test shows they learn (from -57..-225 to above random), not that they coordinate. DICG's margin

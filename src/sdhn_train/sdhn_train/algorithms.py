@@ -4,6 +4,8 @@
     learner = build_learner(cfg, EnvInfo.of(env), seed)  # actor + algo.build_critic + PPOLearner
 
 Adding a baseline = one class with ``name``, defaults and ``build_critic``, listed in ALGORITHMS.
+An algorithm whose learner is not PPO (QMIX, HGCN-MIX: off-policy value mixing) defines
+``build_learner`` instead; ``build_learner`` below hands over to it.
 """
 
 from __future__ import annotations
@@ -16,6 +18,9 @@ import numpy as np
 
 from sdhn_policy.actor_torch import Actor
 from sdhn_policy.weights import ActorSpec
+from sdhn_train.baselines.dicg import DICG
+from sdhn_train.baselines.hgcn_mix import HGCNMIX
+from sdhn_train.baselines.qmix import QMIX, ValueMixingLearner
 from sdhn_train.config import ALGO_NAMES, Config, ConfigError, PPOConfig
 from sdhn_train.critics import Critic, MLPCritic, SDHNCritic
 from sdhn_train.hypergraph import Noise
@@ -30,10 +35,12 @@ class EnvInfo:
     state_size: int
     num_robots: int
     num_actions: int
+    max_steps: int = 500  # episode limit (the size of QMIX's replay episodes)
 
     @classmethod
     def of(cls, env: Any) -> EnvInfo:
-        return cls(env.obs_size, env.state_size, env.num_robots, env.num_actions)
+        return cls(env.obs_size, env.state_size, env.num_robots, env.num_actions,
+                   env.max_steps)
 
 
 class Algorithm(Protocol):
@@ -73,11 +80,12 @@ class MAPPO:
         return MLPCritic(info.state_size, info.num_robots, tuple(cfg.mappo.critic_hidden))
 
 
-ALGORITHMS: dict[str, type[SDHN] | type[MAPPO]] = {SDHN.name: SDHN, MAPPO.name: MAPPO}
+ALGORITHMS: dict[str, type[SDHN] | type[MAPPO] | type[QMIX] | type[DICG] | type[HGCNMIX]] = {
+    a.name: a for a in (SDHN, MAPPO, QMIX, DICG, HGCNMIX)}
 assert tuple(ALGORITHMS) == ALGO_NAMES
 
 
-def get_algorithm(name: str) -> Algorithm:
+def get_algorithm(name: str) -> SDHN | MAPPO | QMIX | DICG | HGCNMIX:
     if name not in ALGORITHMS:
         raise ConfigError(f"algo.name = {name!r} is invalid; allowed: {', '.join(ALGORITHMS)}")
     return ALGORITHMS[name]()
@@ -98,9 +106,13 @@ def actor_spec(cfg: Config, info: EnvInfo) -> ActorSpec:
                      num_robots=info.num_robots if cfg.actor.use_robot_id else 0)
 
 
-def build_learner(cfg: Config, info: EnvInfo, rng: np.random.Generator) -> PPOLearner:
-    """Actor + the algorithm's critic + the shared PPO learner (call after seeding torch)."""
+def build_learner(cfg: Config, info: EnvInfo,
+                  rng: np.random.Generator) -> PPOLearner | ValueMixingLearner:
+    """Actor + the algorithm's critic + the shared PPO learner (call after seeding torch), or the
+    algorithm's own learner where it has one (QMIX, HGCN-MIX)."""
     algo = get_algorithm(cfg.algo.name)
+    if isinstance(algo, QMIX | HGCNMIX):
+        return algo.build_learner(cfg, info, rng)
     actor = Actor(actor_spec(cfg, info))
     critic = algo.build_critic(cfg, info)
     return PPOLearner(actor, critic, resolve_ppo(cfg.ppo, algo), rng)

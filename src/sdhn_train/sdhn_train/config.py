@@ -19,7 +19,7 @@ import yaml
 ENV_NAMES: tuple[str, ...] = (
     "maif-tiny", "maif-10", "maif-16", "maif-20", "rware-3", "rware-6", "rware-9",
 )
-ALGO_NAMES: tuple[str, ...] = ("sdhn", "mappo")
+ALGO_NAMES: tuple[str, ...] = ("sdhn", "mappo", "qmix", "dicg", "hgcn_mix")
 NOISES: tuple[str, ...] = ("logistic", "gumbel_paper")
 
 
@@ -41,7 +41,8 @@ class EnvConfig:
 
 @dataclass
 class AlgoConfig:
-    name: str = opt("sdhn", f"algorithm (only the critic differs), one of {', '.join(ALGO_NAMES)}")
+    name: str = opt("sdhn", f"algorithm, one of {', '.join(ALGO_NAMES)} (sdhn/mappo/dicg: "
+                            "PPO, only the critic differs; qmix/hgcn_mix: value mixing)")
 
 
 @dataclass
@@ -94,6 +95,38 @@ class MAPPOConfig:
 
 
 @dataclass
+class QMIXConfig:
+    """QMIX and HGCN-MIX (off-policy value mixing). They also use ppo.lr (null = 5e-4),
+    ppo.gamma, ppo.rollout_len, ppo.reward_scale and ppo.max_grad_norm."""
+
+    buffer_episodes: int = opt(500, "episode replay buffer capacity (whole episodes)")
+    batch_episodes: int = opt(32, "episodes per gradient step")
+    updates_per_rollout: int = opt(2, "gradient steps after each collected rollout")
+    learning_starts: int = opt(2, "episodes in the buffer before the first gradient step")
+    target_update_interval: int = opt(100, "gradient steps between hard target-network copies")
+    double_q: bool = opt(True, "double Q-learning targets (argmax by the online agent net)")
+    epsilon_start: float = opt(1.0, "epsilon-greedy exploration at step 0")
+    epsilon_finish: float = opt(0.05, "epsilon after the anneal")
+    epsilon_anneal_steps: int = opt(50_000, "team env-steps of the linear epsilon anneal")
+    mixer_embed: int = opt(32, "mixing network embedding size")
+    hypernet_hidden: int = opt(64, "hypernetwork hidden size")
+
+
+@dataclass
+class DICGConfig:
+    embed: int = opt(64, "agent embedding size (attention and GCN width)")
+    gcn_layers: int = opt(2, "GCN message-passing rounds over the soft adjacency")
+    state_hidden: int = opt(64, "global-state encoder size of the value head")
+
+
+@dataclass
+class HGCNMixConfig:
+    num_hyperedges: int = opt(10, "M: hyperedges of the learned deterministic hypergraph")
+    hgcn_hidden: int = opt(64, "HGCN feature size")
+    hgcn_layers: int = opt(2, "HGCN layers")
+
+
+@dataclass
 class TrainConfig:
     total_steps: int = opt(1_000_000, "team env-steps to train for (summed over B envs)")
     seed: int = opt(1, "seed of everything (torch, numpy, environments)")
@@ -125,6 +158,9 @@ class Config:
     ppo: PPOConfig = field(default_factory=PPOConfig)
     sdhn: SDHNConfig = field(default_factory=SDHNConfig)
     mappo: MAPPOConfig = field(default_factory=MAPPOConfig)
+    qmix: QMIXConfig = field(default_factory=QMIXConfig)
+    dicg: DICGConfig = field(default_factory=DICGConfig)
+    hgcn_mix: HGCNMixConfig = field(default_factory=HGCNMixConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     log: LogConfig = field(default_factory=LogConfig)
@@ -228,6 +264,18 @@ def validate(cfg: Config) -> None:
         "sdhn.hgcn_hidden": cfg.sdhn.hgcn_hidden,
         "sdhn.hgcn_layers": cfg.sdhn.hgcn_layers, "sdhn.state_hidden": cfg.sdhn.state_hidden,
         "actor.gru_hidden": cfg.actor.gru_hidden, "eval.episodes": cfg.eval.episodes,
+        "qmix.buffer_episodes": cfg.qmix.buffer_episodes,
+        "qmix.batch_episodes": cfg.qmix.batch_episodes,
+        "qmix.updates_per_rollout": cfg.qmix.updates_per_rollout,
+        "qmix.learning_starts": cfg.qmix.learning_starts,
+        "qmix.target_update_interval": cfg.qmix.target_update_interval,
+        "qmix.epsilon_anneal_steps": cfg.qmix.epsilon_anneal_steps,
+        "qmix.mixer_embed": cfg.qmix.mixer_embed, "qmix.hypernet_hidden": cfg.qmix.hypernet_hidden,
+        "dicg.embed": cfg.dicg.embed, "dicg.gcn_layers": cfg.dicg.gcn_layers,
+        "dicg.state_hidden": cfg.dicg.state_hidden,
+        "hgcn_mix.num_hyperedges": cfg.hgcn_mix.num_hyperedges,
+        "hgcn_mix.hgcn_hidden": cfg.hgcn_mix.hgcn_hidden,
+        "hgcn_mix.hgcn_layers": cfg.hgcn_mix.hgcn_layers,
     }
     for path, v in positive.items():
         need(v >= 1, path, "an integer >= 1", v)
@@ -256,6 +304,11 @@ def validate(cfg: Config) -> None:
          cfg.sdhn.lambda_sk)
     need(cfg.sdhn.lambda_cb >= 0.0, "sdhn.lambda_cb", ">= 0", cfg.sdhn.lambda_cb)
     need(cfg.sdhn.tau > 0.0, "sdhn.tau", "> 0", cfg.sdhn.tau)
+    for path, eps in {"qmix.epsilon_start": cfg.qmix.epsilon_start,
+                      "qmix.epsilon_finish": cfg.qmix.epsilon_finish}.items():
+        need(0.0 <= eps <= 1.0, path, "[0, 1]", eps)
+    need(cfg.qmix.batch_episodes <= cfg.qmix.buffer_episodes, "qmix.batch_episodes",
+         f"1..qmix.buffer_episodes ({cfg.qmix.buffer_episodes})", cfg.qmix.batch_episodes)
 
 
 def describe() -> str:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import copy
 import itertools
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeAlias, TypeVar
 
 import torch
 from torch import Tensor, nn
@@ -22,6 +22,9 @@ from sdhn_train.skewness import (
     skewness_loss,
     squashed_skewness,
 )
+
+if TYPE_CHECKING:
+    from sdhn_train.baselines.dicg import DICGCritic
 
 ModuleT = TypeVar("ModuleT", bound=nn.Module)
 
@@ -122,7 +125,7 @@ class MLPCritic(nn.Module):
         return self.net(state).expand(*state.shape[:-1], self.num_robots)
 
 
-Critic = SDHNCritic | MLPCritic
+Critic: TypeAlias = "SDHNCritic | MLPCritic | DICGCritic"
 
 
 def soft_update(target: nn.Module, source: nn.Module, rate: float) -> None:

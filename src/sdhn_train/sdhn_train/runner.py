@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,14 +24,28 @@ class Timings:
     extra: dict[str, float] = field(default_factory=dict)
 
 
+Sampler = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
+
+
+def sample_categorical(logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Actions [X] ~ Categorical(logits [X, A]) and their log-probs [X]."""
+    logp_all = torch.log_softmax(logits, -1)
+    # Gumbel-max sampling == Categorical(logits).sample()
+    a = (logp_all - torch.log(-torch.log(torch.rand_like(logp_all)))).argmax(-1)
+    return a, logp_all.gather(-1, a[:, None])[:, 0]
+
+
 class RolloutCollector:
     """Steps B environments with the shared actor and fills ``Rollout``s of length T.
 
     Keeps the environments' current obs/state and the actor's hidden state between rollouts.
-    Actions are sampled with torch's global RNG (seeded in one place by the trainer)."""
+    Actions are sampled with torch's global RNG (seeded in one place by the trainer), by
+    ``sampler`` (default: from the policy's softmax; QMIX passes epsilon-greedy)."""
 
-    def __init__(self, env: BatchedEnv, actor: Actor, rollout_len: int) -> None:
+    def __init__(self, env: BatchedEnv, actor: Actor, rollout_len: int,
+                 sampler: Sampler | None = None) -> None:
         self.env, self.actor, self.rollout_len = env, actor, rollout_len
+        self.sample = sampler or sample_categorical
         b, n = env.num_envs, env.num_robots
         self.obs, self.state = env.reset()
         self.actor_h = np.zeros((b, n, actor.spec.gru_hidden), dtype=np.float32)
@@ -57,11 +72,9 @@ class RolloutCollector:
             obs[t], state[t] = self.obs, self.state
             x = self.actor.with_robot_id(torch.from_numpy(self.obs)).reshape(b * n, -1)
             logits, h = self.actor.step(x, h)
-            logp_all = torch.log_softmax(logits, -1)
-            # Gumbel-max sampling == Categorical(logits).sample()
-            a = (logp_all - torch.log(-torch.log(torch.rand_like(logp_all)))).argmax(-1)
+            a, logp = self.sample(logits)
             actions[t] = a.reshape(b, n).numpy()
-            logps[t] = logp_all.gather(-1, a[:, None]).reshape(b, n).numpy()
+            logps[t] = logp.reshape(b, n).numpy()
             t1 = time.perf_counter()
             res = env.step(actions[t])
             t2 = time.perf_counter()

@@ -24,7 +24,9 @@ from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms import EnvInfo, build_learner
 from sdhn_train.config import Config
+from sdhn_train.figures import write_ph_snapshot
 from sdhn_train.ppo import NonFiniteLossError
+from sdhn_train.rollout import Rollout
 from sdhn_train.runner import RolloutCollector, evaluate_greedy
 
 EnvFactory = Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
@@ -98,10 +100,12 @@ class Trainer:
         self.eval_env = (env_factory(cfg.env.name, cfg.eval.episodes, cfg.eval.seed, **overrides)
                          if cfg.eval.interval > 0 else None)
         self.learner = build_learner(cfg, EnvInfo.of(self.env), self.np_rng)
-        self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len)
+        self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len,
+                                          getattr(self.learner, "sample_actions", None))
         self.critic_h = self.learner.critic.initial_state(cfg.env.num_envs).numpy()
         self.global_step = 0
         self.last_checkpoint: Path | None = None
+        self.last_rollout: Rollout | None = None  # for P_H snapshots (sdhn_train.figures)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         name = cfg.log.run_name or f"{cfg.env.name}__{cfg.algo.name}__{cfg.train.seed}__{stamp}"
         self.run_dir = run_dir or Path(cfg.log.root) / name
@@ -126,10 +130,15 @@ class Trainer:
         arrays["collector.state"] = self.collector.state
         arrays["collector.actor_h"] = self.collector.actor_h
         arrays["collector.critic_h"] = self.critic_h
+        learner_values: dict[str, Any] = {}
+        if hasattr(lr, "extra_state"):  # QMIX/HGCN-MIX: replay buffer, episodes in progress
+            extra, learner_values = lr.extra_state()
+            arrays.update({f"learner.{k}": v for k, v in extra.items()})
         meta = {
             "global_step": self.global_step, "num_updates": lr.num_updates,
             "config": self.cfg.to_dict(), "optimizers": opt_meta, "env_values": env_values,
             "rng_numpy": lr.rng.bit_generator.state, "rng_python": list(random.getstate()[1]),
+            "learner": learner_values,
         }
         path = self.run_dir / "checkpoints" / f"step_{self.global_step:012d}"
         ckpt.save_checkpoint(path, arrays, meta)
@@ -155,6 +164,9 @@ class Trainer:
         self.collector.state = arrays["collector.state"].copy()
         self.collector.actor_h = arrays["collector.actor_h"].copy()
         self.critic_h = arrays["collector.critic_h"].copy()
+        if hasattr(lr, "load_extra_state"):
+            lr.load_extra_state({k[8:]: v for k, v in arrays.items() if k.startswith("learner.")},
+                                meta.get("learner", {}))
         self.global_step = int(meta["global_step"])
         lr.num_updates = int(meta["num_updates"])
         self.last_checkpoint = path
@@ -169,6 +181,7 @@ class Trainer:
     def train_iteration(self) -> tuple[dict[str, float], list[EpisodeStats]]:
         """One rollout + one PPO update (the unit that checkpoints and resume line up on)."""
         rollout, episodes = self.collector.collect(self.critic_h)
+        self.last_rollout = rollout
         t0 = time.perf_counter()
         metrics = self.learner.update(rollout)
         self.collector.timings.update += time.perf_counter() - t0
@@ -199,6 +212,8 @@ class Trainer:
                 metrics.update(episode_metrics("charts", episodes))
                 if self.eval_env is not None and self.global_step >= next_eval:
                     metrics.update(self.evaluate())
+                    write_ph_snapshot(self.run_dir, self.global_step, self.learner.critic,
+                                      self.last_rollout)
                     next_eval = _next_multiple(self.global_step, cfg.eval.interval)
                 log.write(self.global_step, metrics)
                 if cfg.log.checkpoint_interval and self.global_step >= next_ckpt:
@@ -216,6 +231,7 @@ class Trainer:
             return 3
         bar.close()
         self.save_checkpoint()
+        write_ph_snapshot(self.run_dir, self.global_step, self.learner.critic, self.last_rollout)
         final = self.evaluate() if self.eval_env is not None else {}
         if final:
             log.write(self.global_step, final)

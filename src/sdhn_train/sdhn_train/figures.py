@@ -1,0 +1,472 @@
+"""Figures and tables of the paper's experiments, from run logs only; and the P_H snapshots that
+SDHN runs write for them.
+
+    make_figures LOGDIR OUTDIR          (scripts/make_figures.py)
+
+LOGDIR holds run directories (``<run>/config.yaml`` + ``<run>/metrics.csv`` from the trainer;
+``run.json`` from the experiment runner when present, ``hypergraph/ph_*.npz`` from SDHN runs).
+A run's method label is ``run.json``'s, else derived from its config (``sdhn_wo_lsk`` =
+sdhn with ``sdhn.skew_loss: false``, ``sdhn_wo_shr`` = with ``sdhn.stochastic_hyperedges: false``).
+Written to OUTDIR (a figure whose data are absent is skipped and listed in results.md):
+
+- ``returns.png``: training return (``charts/episodic_return``) per task, mean and +-1 std over
+  seeds per method (paper Fig. "Performance of SDHN and baselines");
+- ``makespan.png``: final greedy makespan vs robot count on MAIF, NC where no seed completed;
+- ``ablation_<task>.png``: SDHN vs w/o L_Sk and vs w/o stochastic hyperedges;
+- ``ph_heatmap_<task>.png``: P_H (N x M) of SDHN trained with and without L_Sk;
+- ``skewness.png``: Sk of the sampled hypergraphs (``hypergraph/skewness``) over training;
+- ``results.md``: final greedy return, success rate and makespan per task x method.
+Refuses (FigureError) a LOGDIR that is empty, holds something that is not a run, names one
+(task, method, seed) twice, or mixes budgets or suites within a task.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from sdhn_train.rollout import Rollout
+
+PH_DIR = "hypergraph"
+
+
+@torch.no_grad()
+def write_ph_snapshot(run_dir: Path, step: int, critic: Any,
+                      rollout: Rollout | None) -> Path | None:
+    """If ``critic`` generates hypergraphs (SDHN), write ``<run>/hypergraph/ph_<step>.npz`` with
+    P_H [N, M] of environment 0 at the rollout's last step (``ph_last``) and averaged over the
+    rollout's steps and environments (``ph_mean``). Returns the path, or None (other critics,
+    no rollout yet)."""
+    if rollout is None or not hasattr(critic, "probabilities"):
+        return None
+    h0 = (torch.from_numpy(rollout.critic_h0) if rollout.critic_h0 is not None
+          else critic.initial_state(rollout.shape[1]))
+    p = critic.probabilities(torch.from_numpy(rollout.obs), h0,
+                             torch.from_numpy(rollout.resets())).numpy()  # [T, B, N, M]
+    out = run_dir / PH_DIR / f"ph_{step:012d}.npz"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(out, step=np.int64(step), ph_last=p[-1, 0], ph_mean=p.mean((0, 1)))
+    return out
+
+
+# --- reading runs -----------------------------------------------------------------------------
+
+TASK_ORDER = ("maif-tiny", "maif-10", "maif-16", "maif-20", "rware-3", "rware-6", "rware-9")
+METHOD_ORDER = ("sdhn", "mappo", "qmix", "dicg", "hgcn_mix", "sdhn_wo_lsk", "sdhn_wo_shr")
+METHOD_LABEL = {"sdhn": "SDHN", "mappo": "MAPPO", "qmix": "QMIX", "dicg": "DICG",
+                "hgcn_mix": "HGCN-MIX", "sdhn_wo_lsk": "SDHN w/o $L_{Sk}$",
+                "sdhn_wo_shr": "SDHN w/o SHR"}
+BUDGET_KEYS = (("train", "total_steps"), ("env", "max_steps"))
+
+
+class FigureError(ValueError):
+    """A log directory the figures cannot honestly be drawn from."""
+
+
+Series = tuple[np.ndarray, np.ndarray]  # (steps, values), sorted by step
+
+
+@dataclass
+class Run:
+    path: Path
+    task: str
+    method: str
+    seed: int
+    config: dict[str, Any]
+    suite: str | None
+    series: dict[str, Series] = field(default_factory=dict)
+
+    def final(self, tag: str) -> float | None:
+        s = self.series.get(tag)
+        return float(s[1][-1]) if s is not None and len(s[0]) else None
+
+    def final_eval_step(self) -> int | None:
+        s = self.series.get("eval/episodic_return")
+        return int(s[0][-1]) if s is not None and len(s[0]) else None
+
+
+def method_of(config: dict[str, Any]) -> str:
+    algo = str(config["algo"]["name"])
+    if algo == "sdhn":
+        if not config["sdhn"].get("skew_loss", True):
+            return "sdhn_wo_lsk"
+        if not config["sdhn"].get("stochastic_hyperedges", True):
+            return "sdhn_wo_shr"
+    return algo
+
+
+def read_metrics(path: Path) -> dict[str, Series]:
+    """{tag: (steps, values)} from a long-format metrics.csv; a step logged twice (a resumed
+    run) keeps its last value."""
+    rows: dict[str, dict[int, float]] = defaultdict(dict)
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        if reader.fieldnames is None or not {"step", "tag", "value"} <= set(reader.fieldnames):
+            raise FigureError(f"{path}: not a trainer metrics.csv (columns {reader.fieldnames})")
+        for row in reader:
+            rows[row["tag"]][int(row["step"])] = float(row["value"])
+    out = {}
+    for tag, by_step in rows.items():
+        steps = np.array(sorted(by_step))
+        out[tag] = (steps, np.array([by_step[k] for k in steps]))
+    return out
+
+
+def read_run(path: Path) -> Run:
+    cfg_file, csv_file = path / "config.yaml", path / "metrics.csv"
+    missing = [f.name for f in (cfg_file, csv_file) if not f.exists()]
+    if missing:
+        raise FigureError(f"{path} is not a finished trainer run (missing {', '.join(missing)})")
+    config = yaml.safe_load(cfg_file.read_text())
+    spec = json.loads((path / "run.json").read_text()) if (path / "run.json").exists() else {}
+    return Run(path=path, task=str(spec.get("task", config["env"]["name"])),
+               method=str(spec.get("method", method_of(config))),
+               seed=int(spec.get("seed", config["train"]["seed"])), config=config,
+               suite=spec.get("suite"), series=read_metrics(csv_file))
+
+
+def load_runs(logdir: Path) -> list[Run]:
+    """Every run directly under ``logdir``; FigureError if it is empty or mixed up."""
+    if not logdir.is_dir():
+        raise FigureError(f"{logdir} is not a directory")
+    entries = sorted(p for p in logdir.iterdir() if not p.name.startswith("."))
+    if not entries:
+        raise FigureError(f"{logdir} is empty: expected run directories (<run>/metrics.csv and "
+                          "<run>/config.yaml, as written by train or run_experiments)")
+    strays = [p.name for p in entries if not p.is_dir()]
+    if strays:
+        raise FigureError(f"{logdir} mixes runs with other files ({', '.join(strays[:5])}): "
+                          "point make_figures at a directory holding only run directories")
+    runs = [read_run(p) for p in entries]
+    seen: dict[tuple[str, str, int], Path] = {}
+    for r in runs:
+        key = (r.task, r.method, r.seed)
+        if key in seen:
+            raise FigureError(f"{seen[key].name} and {r.path.name} are both {r.method} on "
+                              f"{r.task} with seed {r.seed}: mixed-up log directory")
+        seen[key] = r.path
+    suites = {r.suite for r in runs if r.suite is not None}
+    if len(suites) > 1:
+        raise FigureError(f"{logdir} mixes suites {sorted(suites)}")
+    by_task: dict[str, dict[tuple[Any, ...], list[str]]] = defaultdict(lambda: defaultdict(list))
+    for r in runs:
+        budget = tuple(r.config[a][b] for a, b in BUDGET_KEYS)
+        by_task[r.task][budget].append(r.path.name)
+    for task, budgets in by_task.items():
+        if len(budgets) > 1:
+            desc = "; ".join(f"{dict(zip(['total_steps', 'max_steps'], b, strict=True))}: "
+                             f"{', '.join(names[:3])}" for b, names in budgets.items())
+            raise FigureError(f"{logdir} mixes budgets on {task}: {desc}")
+    return runs
+
+
+def _ordered(keys: Any, order: tuple[str, ...]) -> list[str]:
+    keys = set(keys)
+    return [k for k in order if k in keys] + sorted(keys - set(order))
+
+
+def seed_curves(runs: list[Run], tag: str, points: int = 100,
+                smooth: int = 5) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per-seed curves of ``tag`` on a common step grid: (grid [P], values [seeds, P]); a
+    trailing moving average of ``smooth`` logged points first."""
+    curves = [r.series[tag] for r in runs if tag in r.series and len(r.series[tag][0])]
+    if not curves:
+        return None
+    end = min(int(s[-1]) for s, _ in curves)
+    start = max(int(s[0]) for s, _ in curves)
+    grid = np.linspace(start, max(end, start), points)
+    out = []
+    for steps, vals in curves:
+        k = max(1, min(smooth, len(vals)))
+        sm = np.convolve(vals, np.ones(k) / k, mode="full")[: len(vals)]
+        sm[: k - 1] = np.cumsum(vals[: k - 1]) / np.arange(1, k)
+        out.append(np.interp(grid, steps, sm))
+    return grid, np.array(out)
+
+
+# --- figures ----------------------------------------------------------------------------------
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _grid(n: int, width: float = 4.2, height: float = 3.2) -> tuple[Any, list[Any]]:
+    plt = _plt()
+    cols = min(3, n)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), squeeze=False)
+    flat = list(axes.flat)
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:n]
+
+
+def _curves(ax: Any, groups: dict[str, list[Run]], tag: str, title: str) -> None:
+    for method in _ordered(groups, METHOD_ORDER):
+        got = seed_curves(groups[method], tag)
+        if got is None:
+            continue
+        grid, vals = got
+        mean, std = vals.mean(0), vals.std(0)
+        line = ax.plot(grid, mean, label=f"{METHOD_LABEL.get(method, method)} (n={len(vals)})")
+        ax.fill_between(grid, mean - std, mean + std, alpha=0.2, color=line[0].get_color())
+    ax.set_title(title)
+    ax.set_xlabel("team env-steps")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+
+
+def _by(runs: list[Run], *attrs: str) -> dict[Any, list[Run]]:
+    out: dict[Any, list[Run]] = defaultdict(list)
+    for r in runs:
+        key = tuple(getattr(r, a) for a in attrs)
+        out[key[0] if len(key) == 1 else key].append(r)
+    return out
+
+
+def fig_returns(runs: list[Run], out: Path) -> Path | None:
+    main = [r for r in runs if r.method not in ("sdhn_wo_lsk", "sdhn_wo_shr")]
+    tasks = _ordered(_by(main, "task"), TASK_ORDER)
+    if not tasks:
+        return None
+    fig, axes = _grid(len(tasks))
+    for ax, task in zip(axes, tasks, strict=True):
+        _curves(ax, _by([r for r in main if r.task == task], "method"), "charts/episodic_return",
+                task)
+        ax.set_ylabel("episode return")
+    fig.tight_layout()
+    path = out / "returns.png"
+    fig.savefig(path, dpi=120)
+    _plt().close(fig)
+    return path
+
+
+def num_robots(run: Run) -> int:
+    from sdhn_sim.envs import MAIF_CONFIGS
+
+    return MAIF_CONFIGS[run.task].num_robots
+
+
+def final_makespan(runs: list[Run]) -> tuple[float | None, list[float]]:
+    """(mean makespan over seeds whose final greedy evaluation completed any episode, or None =
+    NC; the per-seed values). Falls back to training episodes where a run has no evaluation."""
+    vals = []
+    for r in runs:
+        prefix = "eval" if r.final_eval_step() is not None else "charts"
+        succ = r.final(f"{prefix}/success_rate")
+        ms = r.series.get(f"{prefix}/makespan")
+        if succ and ms is not None and len(ms[0]):
+            vals.append(float(ms[1][-1]))
+    return (float(np.mean(vals)) if vals else None), vals
+
+
+def fig_makespan(runs: list[Run], out: Path) -> Path | None:
+    maif = [r for r in runs if r.task.startswith("maif-") and r.task != "maif-tiny"
+            and r.method not in ("sdhn_wo_lsk", "sdhn_wo_shr")]
+    if not maif:
+        maif = [r for r in runs if r.task.startswith("maif-")
+                and r.method not in ("sdhn_wo_lsk", "sdhn_wo_shr")]
+    if not maif:
+        return None
+    plt = _plt()
+    tasks = sorted(_by(maif, "task"), key=lambda t: num_robots(_by(maif, "task")[t][0]))
+    methods = _ordered(_by(maif, "method"), METHOD_ORDER)
+    fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(tasks) * max(1, len(methods)) / 3, 3.4))
+    width = 0.8 / len(methods)
+    tops = []
+    for j, method in enumerate(methods):
+        for i, task in enumerate(tasks):
+            group = [r for r in maif if r.task == task and r.method == method]
+            if not group:
+                continue
+            mean, vals = final_makespan(group)
+            x = i + (j - (len(methods) - 1) / 2) * width
+            if mean is None:
+                ax.text(x, 0, "NC", ha="center", va="bottom", fontsize=7, rotation=90,
+                        color=f"C{j}")
+                continue
+            ax.bar(x, mean, width, color=f"C{j}", yerr=np.std(vals) if len(vals) > 1 else None,
+                   label=METHOD_LABEL.get(method, method) if i == 0 or not ax.patches else None)
+            tops.append(mean)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=f"C{j}") for j in range(len(methods))]
+    ax.legend(handles, [METHOD_LABEL.get(m, m) for m in methods], fontsize=7)
+    ax.set_xticks(range(len(tasks)),
+                  [f"{num_robots(_by(maif, 'task')[t][0])} robots" for t in tasks])
+    ax.set_ylabel("makespan (steps; NC = not completed)")
+    ax.set_title("Average makespan on MAIF (final greedy evaluation)")
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    path = out / "makespan.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def fig_ablations(runs: list[Run], out: Path) -> list[Path]:
+    paths = []
+    for task in _ordered(_by(runs, "task"), TASK_ORDER):
+        group = _by([r for r in runs if r.task == task], "method")
+        panels = [(abl, title) for abl, title in (("sdhn_wo_lsk", "with / without $L_{Sk}$"),
+                                                  ("sdhn_wo_shr", "with / without SHR"))
+                  if abl in group and "sdhn" in group]
+        if not panels:
+            continue
+        fig, axes = _grid(len(panels))
+        for ax, (abl, title) in zip(axes, panels, strict=True):
+            _curves(ax, {"sdhn": group["sdhn"], abl: group[abl]}, "charts/episodic_return",
+                    f"{task}: {title}")
+            ax.set_ylabel("episode return")
+        fig.tight_layout()
+        path = out / f"ablation_{task}.png"
+        fig.savefig(path, dpi=120)
+        _plt().close(fig)
+        paths.append(path)
+    return paths
+
+
+def latest_ph(run: Run) -> tuple[int, np.ndarray] | None:
+    snaps = sorted((run.path / PH_DIR).glob("ph_*.npz"))
+    if not snaps:
+        return None
+    with np.load(snaps[-1]) as z:
+        return int(z["step"]), np.array(z["ph_last"])
+
+
+def fig_ph_heatmaps(runs: list[Run], out: Path) -> list[Path]:
+    paths = []
+    plt = _plt()
+    for task in _ordered(_by(runs, "task"), TASK_ORDER):
+        found = {}
+        for method in ("sdhn_wo_lsk", "sdhn"):
+            cands = sorted((r for r in runs if r.task == task and r.method == method),
+                           key=lambda r: r.seed)
+            for r in cands:
+                snap = latest_ph(r)
+                if snap is not None:
+                    found[method] = (r, *snap)
+                    break
+        if len(found) < 2:
+            continue
+        fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
+        im = None
+        for ax, method in zip(axes, ("sdhn_wo_lsk", "sdhn"), strict=True):
+            run, step, ph = found[method]
+            im = ax.imshow(ph, vmin=0.0, vmax=1.0, cmap="viridis", aspect="auto")
+            ax.set_title(f"{METHOD_LABEL[method] if method != 'sdhn' else 'SDHN (with $L_{Sk}$)'}"
+                         f"\nseed {run.seed}, step {step}, mean p {ph.mean():.2f}", fontsize=9)
+            ax.set_xlabel("hyperedge j")
+            ax.set_ylabel("robot i")
+        fig.colorbar(im, ax=list(axes), label="$P_H$")
+        path = out / f"ph_heatmap_{task}.png"
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def fig_skewness(runs: list[Run], out: Path) -> Path | None:
+    sk = [r for r in runs if "hypergraph/skewness" in r.series]
+    tasks = _ordered(_by(sk, "task"), TASK_ORDER)
+    if not tasks:
+        return None
+    fig, axes = _grid(len(tasks))
+    for ax, task in zip(axes, tasks, strict=True):
+        _curves(ax, _by([r for r in sk if r.task == task], "method"), "hypergraph/skewness",
+                f"{task}: skewness of sampled H")
+        ax.axhline(-0.6, color="k", lw=0.8, ls="--")
+        ax.set_ylabel("Sk (target $\\lambda_{Sk}$ = -0.6)")
+    fig.tight_layout()
+    path = out / "skewness.png"
+    fig.savefig(path, dpi=120)
+    _plt().close(fig)
+    return path
+
+
+def _fmt(vals: list[float], digits: int = 1) -> str:
+    if not vals:
+        return "-"
+    if len(vals) == 1:
+        return f"{vals[0]:.{digits}f}"
+    return f"{np.mean(vals):.{digits}f} ± {np.std(vals):.{digits}f}"
+
+
+def results_table(runs: list[Run]) -> str:
+    lines = ["| task | method | seeds | steps | greedy return | success rate | makespan |",
+             "|---|---|---|---|---|---|---|"]
+    by_task = _by(runs, "task")
+    for task in _ordered(by_task, TASK_ORDER):
+        by_method = _by(by_task[task], "method")
+        for method in _ordered(by_method, METHOD_ORDER):
+            group = by_method[method]
+            prefix = "eval" if all(r.final_eval_step() is not None for r in group) else "charts"
+            rets = [v for r in group if (v := r.final(f"{prefix}/episodic_return")) is not None]
+            succ = [v for r in group if (v := r.final(f"{prefix}/success_rate")) is not None]
+            mean, ms = final_makespan(group)
+            steps = max(int(s[0][-1]) for r in group for s in r.series.values() if len(s[0]))
+            lines.append(f"| {task} | {METHOD_LABEL.get(method, method).replace('$', '')} | "
+                         f"{len(group)} | {steps} | {_fmt(rets)} | {_fmt(succ, 2)} | "
+                         f"{'NC' if mean is None else _fmt(ms)} |")
+    return "\n".join(lines)
+
+
+def make_figures(logdir: Path, outdir: Path) -> list[Path]:
+    """Every figure and the table; returns the files written."""
+    runs = load_runs(logdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    skipped: list[str] = []
+    for name, fn in (("returns", fig_returns), ("makespan", fig_makespan),
+                     ("skewness", fig_skewness)):
+        p = fn(runs, outdir)
+        if p is None:
+            skipped.append(name)
+        else:
+            written.append(p)
+    for name, fns in (("ablations", fig_ablations), ("P_H heatmaps", fig_ph_heatmaps)):
+        ps = fns(runs, outdir)
+        written += ps
+        if not ps:
+            skipped.append(name)
+    md = [f"# Results from {logdir}", "",
+          "Greedy return / success / makespan: final greedy evaluation (training episodes where a "
+          "run has none); mean ± std over seeds; makespan over seeds that completed; NC = no "
+          "seed completed.", "", results_table(runs), ""]
+    md += ["Figures: " + ", ".join(p.name for p in written), ""]
+    if skipped:
+        md += [f"Skipped (no data in the logs): {', '.join(skipped)}", ""]
+    (outdir / "results.md").write_text("\n".join(md))
+    written.append(outdir / "results.md")
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+    import sys
+
+    p = argparse.ArgumentParser(prog="make_figures", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("logdir", type=Path)
+    p.add_argument("outdir", type=Path)
+    args = p.parse_args(argv)
+    try:
+        written = make_figures(args.logdir, args.outdir)
+    except FigureError as e:
+        print(f"make_figures: {e}", file=sys.stderr)
+        return 2
+    for path in written:
+        print(path)
+    return 0

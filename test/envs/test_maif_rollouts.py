@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from envs_helpers import bench_module
+from .envs_helpers import bench_module
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

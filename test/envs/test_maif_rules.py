@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from envs_helpers import scenario
+from .envs_helpers import scenario
 
 STAY, UP, DOWN, LEFT, RIGHT = range(5)
 FAR = [(7, 7), (6, 7), (7, 6), (6, 6), (5, 7)]  # goals out of the way

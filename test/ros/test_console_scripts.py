@@ -17,6 +17,7 @@ PACKAGES = ("sdhn_sim", "sdhn_policy", "sdhn_train")
 NODES: dict[tuple[str, str], list[str]] = {
     ("sdhn_sim", "sim"): [],
     ("sdhn_sim", "recorder"): [],
+    ("sdhn_sim", "viz"): ["-p", "port:=0"],
     ("sdhn_policy", "actor"): ["-r", "__ns:=/sdhn/robot_3", "-p", "robot_id:=3"],
     ("sdhn_train", "trainer"): [],
 }

@@ -22,6 +22,7 @@ from typing import Any
 import foxglove
 from foxglove.channels import RawImageChannel, SceneUpdateChannel
 from foxglove.websocket import ChannelView, Client, ServerListener
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.node import Node
 
@@ -90,9 +91,9 @@ class VizNode(Node):
         team_ns = str(self.declare_parameter("team_ns", "/sdhn").value)
         env = str(self.declare_parameter("env", "").value)
         host = str(self.declare_parameter("host", "127.0.0.1").value)
-        port = int(self.declare_parameter("port", 8765).value)
-        max_rate = float(self.declare_parameter("max_rate", 30.0).value)
-        trail = int(self.declare_parameter("trail_length", 12).value)
+        port = int(self._number("port", 8765, int))
+        max_rate = self._number("max_rate", 30.0, float)
+        trail = int(self._number("trail_length", 12, int))
         _check_params(team_ns, env, host, port, max_rate=max_rate, trail=trail)
 
         self.fox = foxglove.Context()
@@ -130,6 +131,17 @@ class VizNode(Node):
             f"ready: foxglove ws://{host}:{self.server.port} team_ns={ns} "
             f"env={env or '(from msgs)'}"
         )
+
+    def _number(self, name: str, default: float, kind: type) -> float:
+        """A numeric parameter that accepts 0 as well as 0.0; a wrong type is a ConfigError."""
+        value = self.declare_parameter(
+            name, default, ParameterDescriptor(dynamic_typing=True)
+        ).value
+        if isinstance(value, bool) or not isinstance(value, int | float) or (
+            kind is int and not float(value).is_integer()
+        ):
+            raise ConfigError(f"{name}: {value!r} is not a{'n int' if kind is int else ' number'}")
+        return float(value)
 
     # -- input
     def drop(self, source: str, error: BadInput) -> None:

@@ -324,9 +324,9 @@ class TeamFrame:
 def parse_team_state(msg: Any, expected_env: str = "") -> TeamFrame:
     """Validate a TeamState (ROS or decoded recording); raises ``BadInput`` naming the problem."""
     name = str(msg.env_name)
+    world = world_info(name)
     if expected_env and name != expected_env:
         raise BadInput("env_mismatch", f"state of {name!r} but this viewer draws {expected_env!r}")
-    world = world_info(name)
     n = int(msg.num_robots)
     if n != world.num_robots:
         raise BadInput("wrong_size", f"num_robots={n}, {name} has {world.num_robots}")

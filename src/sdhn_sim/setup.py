@@ -29,6 +29,7 @@ setup(
             "sim = sdhn_sim.sim_node:main",
             "recorder = sdhn_sim.recorder_node:main",
             "replay = sdhn_sim.replay:main",
+            "viz = sdhn_sim.viz_node:main",
         ],
     },
 )

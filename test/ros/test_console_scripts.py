@@ -19,6 +19,7 @@ _OUT = tempfile.mkdtemp(prefix="sdhn-console-")  # outputs of the recorder and t
 NODES: dict[tuple[str, str], list[str]] = {
     ("sdhn_sim", "sim"): [],
     ("sdhn_sim", "recorder"): ["-p", f"output:={_OUT}/recording.mcap"],
+    ("sdhn_sim", "viz"): ["-p", "port:=0"],
     ("sdhn_policy", "actor"): ["-r", "__ns:=/sdhn/robot_3", "-p", "robot_id:=3"],
     # resume: the second start (other signal) continues the first one's run directory
     ("sdhn_train", "trainer"): ["-p", "env:=maif-tiny", "-p", f"run_dir:={_OUT}/trainer",

@@ -1,0 +1,220 @@
+"""Viz node: serves the team's state, hypergraphs and metrics to Foxglove over a WebSocket.
+
+Subscribes to ``{team_ns}/state``, ``{team_ns}/hypergraph`` and ``{team_ns}/episode`` and serves a
+Foxglove WebSocket (Foxglove SDK for Python; protobuf ``foxglove.*`` schemas and JSON) with channels
+``/viz/scene``, ``/viz/hypergraph`` (SceneUpdate), ``/viz/hypergraph/p_h`` (RawImage),
+``/viz/metrics`` and ``/viz/episodes`` (JSON). Drawing lives in ``viz_scene`` (ROS-free).
+
+Nothing is built or encoded for a channel no client subscribes to (``Channel.has_sinks``): the
+callbacks only validate and keep a short trail. The scene is sent at most ``max_rate`` times per
+second (a viewer cannot show more); the static part (floor, obstacles, goals) only when a client
+subscribes, the episode or map changes, or every ``STATIC_PERIOD_S``.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import foxglove
+from foxglove.channels import RawImageChannel, SceneUpdateChannel
+from foxglove.websocket import ChannelView, Client, ServerListener
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.context import Context
+from rclpy.node import Node
+
+from sdhn_msgs.msg import EpisodeSummary, Hypergraph, TeamState
+from sdhn_sim.base_node import ConfigError, run_node
+from sdhn_sim.envs.registry import env_names
+from sdhn_sim.qos import SENSOR, STEP
+from sdhn_sim.viz_scene import (
+    EPISODE_SCHEMA,
+    METRICS_SCHEMA,
+    TOPIC_EPISODES,
+    TOPIC_HYPERGRAPH,
+    TOPIC_METRICS,
+    TOPIC_P_H,
+    TOPIC_SCENE,
+    BadInput,
+    VizRenderer,
+)
+
+STATIC_PERIOD_S = 5.0
+
+
+class _Subscriptions(ServerListener):
+    """Foxglove server listener: notes that a client subscribed, so statics are re-sent."""
+
+    def __init__(self) -> None:
+        self.new_subscriber = threading.Event()
+
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+        self.new_subscriber.set()
+
+    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
+        return None
+
+
+def _check_params(
+    team_ns: str, env: str, host: str, port: int, *, max_rate: float, trail: int
+) -> None:
+    if not team_ns.startswith("/") or (team_ns.endswith("/") and team_ns != "/"):
+        raise ConfigError(
+            f"team_ns: {team_ns!r} must be absolute without a trailing '/'; e.g. /sdhn"
+        )
+    if env and env not in env_names():
+        raise ConfigError(f"env: unknown environment {env!r}; allowed: '' (from messages), "
+                          f"{', '.join(env_names())}")
+    if not host:
+        raise ConfigError("host: empty; allowed: an address or name, e.g. 127.0.0.1")
+    if not 0 <= port <= 65535:
+        raise ConfigError(f"port: {port}; allowed: 0..65535 (0 = any free port)")
+    if not max_rate >= 0.0:
+        raise ConfigError(f"max_rate: {max_rate}; allowed: >= 0 Hz (0 = every state)")
+    if trail < 1:
+        raise ConfigError(f"trail_length: {trail}; allowed: >= 1 steps")
+
+
+def _is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+class VizNode(Node):
+    def __init__(self, context: Context) -> None:
+        super().__init__("viz", context=context)
+        team_ns = str(self.declare_parameter("team_ns", "/sdhn").value)
+        env = str(self.declare_parameter("env", "").value)
+        host = str(self.declare_parameter("host", "127.0.0.1").value)
+        port = int(self._number("port", 8765, int))
+        max_rate = self._number("max_rate", 30.0, float)
+        trail = int(self._number("trail_length", 12, int))
+        _check_params(team_ns, env, host, port, max_rate=max_rate, trail=trail)
+
+        self.fox = foxglove.Context()
+        self.listener = _Subscriptions()
+        try:
+            self.server = foxglove.start_server(
+                name="sdhn viz", host=host, port=port, context=self.fox,
+                server_listener=self.listener,
+            )
+        except RuntimeError as error:
+            reason = str(error).split(": ", 1)[-1]
+            raise ConfigError(f"port: cannot serve on {host}:{port} ({reason})") from None
+        self.scene_ch = SceneUpdateChannel(TOPIC_SCENE, context=self.fox)
+        self.hyper_ch = SceneUpdateChannel(TOPIC_HYPERGRAPH, context=self.fox)
+        self.p_h_ch = RawImageChannel(TOPIC_P_H, context=self.fox)
+        self.metrics_ch = foxglove.Channel(TOPIC_METRICS, schema=METRICS_SCHEMA, context=self.fox)
+        self.episode_ch = foxglove.Channel(TOPIC_EPISODES, schema=EPISODE_SCHEMA, context=self.fox)
+
+        self.renderer = VizRenderer(env=env, trail_length=trail)
+        self.min_period = 1.0 / max_rate if max_rate > 0 else 0.0
+        self.last_scene = 0.0
+        self.last_static = 0.0
+        self.static_key: tuple[str, int, int] | None = None
+        self.dropped: dict[str, int] = {}
+        self.encoded = 0
+
+        ns = team_ns.rstrip("/")
+        self.create_subscription(TeamState, f"{ns}/state", self.on_state, STEP)
+        self.create_subscription(Hypergraph, f"{ns}/hypergraph", self.on_hypergraph, SENSOR)
+        self.create_subscription(EpisodeSummary, f"{ns}/episode", self.on_episode, STEP)
+        if not _is_loopback(host):
+            self.get_logger().warning(f"serving beyond loopback on {host}: anyone who can reach "
+                                      "it can watch")
+        self.get_logger().info(
+            f"ready: foxglove ws://{host}:{self.server.port} team_ns={ns} "
+            f"env={env or '(from msgs)'}"
+        )
+
+    def _number(self, name: str, default: float, kind: type) -> float:
+        """A numeric parameter that accepts 0 as well as 0.0; a wrong type is a ConfigError."""
+        value = self.declare_parameter(
+            name, default, ParameterDescriptor(dynamic_typing=True)
+        ).value
+        if isinstance(value, bool) or not isinstance(value, int | float) or (
+            kind is int and not float(value).is_integer()
+        ):
+            raise ConfigError(f"{name}: {value!r} is not a{'n int' if kind is int else ' number'}")
+        return float(value)
+
+    # -- input
+    def drop(self, source: str, error: BadInput) -> None:
+        key = f"{source}/{error.kind}"
+        self.dropped[key] = self.dropped.get(key, 0) + 1
+        self.renderer.dropped += 1
+        if self.dropped[key] == 1:
+            self.get_logger().warning(f"dropped {source}: {error} (counted as {key})")
+
+    def on_state(self, msg: TeamState) -> None:
+        now = time.monotonic()
+        try:
+            frame = self.renderer.on_state(msg, now_s=now)
+        except BadInput as error:
+            self.drop("state", error)
+            return
+        if now - self.last_scene < self.min_period:
+            return
+        self.last_scene = now
+        if self.scene_ch.has_sinks():
+            key = (frame.env_name, frame.episode, 0)
+            estimate = self.renderer.map_estimate()
+            exact = estimate is None or estimate.exact
+            with_static = (
+                key != self.static_key
+                or not exact
+                or self.listener.new_subscriber.is_set()
+                or now - self.last_static > STATIC_PERIOD_S
+            )
+            if with_static:
+                self.listener.new_subscriber.clear()
+                self.static_key, self.last_static = key, now
+            self.scene_ch.log(self.renderer.scene(with_static=with_static))
+            self.encoded += 1
+        if self.metrics_ch.has_sinks():
+            self.metrics_ch.log(self.renderer.metrics())
+
+    def on_hypergraph(self, msg: Hypergraph) -> None:
+        try:
+            self.renderer.on_hypergraph(msg)
+        except BadInput as error:
+            self.drop("hypergraph", error)
+            return
+        if self.hyper_ch.has_sinks():
+            scene = self.renderer.hypergraph_scene()
+            if scene is not None:
+                self.hyper_ch.log(scene)
+                self.encoded += 1
+        if self.p_h_ch.has_sinks():
+            image = self.renderer.p_h_image()
+            if image is not None:
+                self.p_h_ch.log(image)
+                self.encoded += 1
+
+    def on_episode(self, msg: EpisodeSummary) -> None:
+        try:
+            summary = self.renderer.on_episode(msg)
+        except BadInput as error:
+            self.drop("episode", error)
+            return
+        if self.episode_ch.has_sinks():
+            self.episode_ch.log(summary)
+
+    def stop(self) -> None:
+        self.server.stop()
+        dropped = ", ".join(f"{k}={v}" for k, v in sorted(self.dropped.items())) or "none"
+        self.get_logger().info(f"served {self.encoded} encoded messages; dropped: {dropped}")
+
+
+def _on_stop(node: Any) -> None:
+    if isinstance(node, VizNode):
+        node.stop()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run_node(lambda context, _args: VizNode(context), argv, on_stop=_on_stop)

@@ -17,7 +17,8 @@ def read_episodes(run_dir: Path) -> list[dict[str, str]]:
     return list(csv.DictReader(path.read_text().splitlines())) if path.exists() else []
 
 
-def read_train_curve(train_run: Path, tag: str = "charts/episodic_return") -> list[tuple[int, float]]:
+def read_train_curve(train_run: Path,
+                     tag: str = "charts/episodic_return") -> list[tuple[int, float]]:
     path = train_run / "metrics.csv"
     if not path.exists():
         return []

@@ -118,11 +118,13 @@ def _reencode(mutate) -> ActorWeights:  # type: ignore[no-untyped-def]
 
 @pytest.mark.parametrize(("make", "match"), [
     (lambda b: ActorWeights(b.format, b.version, b.payload, "0" * 64), "sha256"),
-    (lambda b: ActorWeights("sdhn-actor/99", b.version, b.payload, b.sha256), "unknown weights format"),
+    (lambda b: ActorWeights("sdhn-actor/99", b.version, b.payload, b.sha256), "unknown weights"),
     (lambda b: ActorWeights(b.format, b.version + 1, b.payload, b.sha256), "version"),
-    (lambda b: ActorWeights(b.format, b.version, b.payload[:-4], sha256_hex(b.payload[:-4])), "safetensors"),
+    (lambda b: ActorWeights(b.format, b.version, b.payload[:-4], sha256_hex(b.payload[:-4])),
+     "safetensors"),
     (lambda b: ActorWeights(b.format, b.version, b"junk", sha256_hex(b"junk")), "payload"),
-    (lambda b: _reencode(lambda t: t.update({"head.weight": np.zeros((9, 24), np.float32)})), "shape"),
+    (lambda b: _reencode(lambda t: t.update({"head.weight": np.zeros((9, 24), np.float32)})),
+     "shape"),
     (lambda b: _reencode(lambda t: t.update({"extra": np.zeros(2, np.float32)})), "unexpected"),
     (lambda b: _reencode(lambda t: t.pop("gru.bias_hh")), "missing"),
     (lambda b: _reencode(lambda t: t.update({"head.bias": np.full(4, np.nan, np.float32)})), "NaN"),

@@ -70,7 +70,7 @@ def test_binary_concrete_paper_noise_and_deterministic_switch() -> None:
 def test_straight_through_gradient_equals_gradient_of_y() -> None:
     logits = torch.tensor([0.3, -1.2], requires_grad=True)
     torch.manual_seed(3)
-    h, y = binary_concrete(logits, tau=0.7)
+    h, _ = binary_concrete(logits, tau=0.7)
     (h * torch.tensor([2.0, 5.0])).sum().backward()
     g_h = logits.grad.clone()
     logits.grad = None

@@ -14,7 +14,7 @@ from sdhn_train.config import Config
 from sdhn_train.trainer import Trainer
 
 
-def short_episodes(name: str, num_envs: int, seed: int) -> BatchedEnv:
+def short_episodes(name: str, num_envs: int, seed: int, **kw: object) -> BatchedEnv:
     """12-step episodes, so rollouts cross episode ends (hidden resets, next instances)."""
     return make_env(name, num_envs=num_envs, seed=seed, max_steps=12)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import tempfile
 from importlib import metadata
 
 import pytest
@@ -13,12 +14,15 @@ import pytest
 from .processes import ROS2, node_processes
 
 PACKAGES = ("sdhn_sim", "sdhn_policy", "sdhn_train")
+_OUT = tempfile.mkdtemp(prefix="sdhn-console-")  # outputs of the recorder and trainer rows
 # Executables that are long-running nodes, with the arguments a minimal start needs.
 NODES: dict[tuple[str, str], list[str]] = {
     ("sdhn_sim", "sim"): [],
-    ("sdhn_sim", "recorder"): [],
+    ("sdhn_sim", "recorder"): ["-p", f"output:={_OUT}/recording.mcap"],
     ("sdhn_policy", "actor"): ["-r", "__ns:=/sdhn/robot_3", "-p", "robot_id:=3"],
-    ("sdhn_train", "trainer"): [],
+    # resume: the second start (other signal) continues the first one's run directory
+    ("sdhn_train", "trainer"): ["-p", "env:=maif-tiny", "-p", f"run_dir:={_OUT}/trainer",
+                                "-p", "resume:=true"],
 }
 # Executables that are command-line tools rather than nodes.
 TOOLS = {("sdhn_sim", "replay"), ("sdhn_train", "train")}

@@ -7,10 +7,30 @@ encoder -> GRU cell -> categorical logits. ``export()`` produces the safetensors
 
 from __future__ import annotations
 
+import itertools
+
 import torch
 from torch import Tensor, nn
 
 from sdhn_policy.weights import ActorSpec, ActorWeights, encode_actor
+
+
+def gru_sequence(gru: nn.GRU, x: Tensor, h0: Tensor, resets: Tensor) -> tuple[Tensor, Tensor]:
+    """Run ``gru`` over x [T, B, in] from h0 [L, B, H], zeroing the hidden state of env b before
+    step t where resets[t, b]. One fused ``nn.GRU`` call per segment between reset times (not
+    one call per step). Returns (outputs [T, B, H], hiddens [T, L, B, H]); ``hiddens[t]`` is
+    the hidden state after step t, filled (detached) only at segment ends, i.e. at the last step
+    and wherever resets[t + 1] has a True."""
+    t_len = x.shape[0]
+    cuts = [0, *sorted(set(resets.any(1).nonzero().flatten().tolist()) - {0}), t_len]
+    keep = (~resets).to(x.dtype)[:, None, :, None]  # [T, 1, B, 1]
+    hiddens = x.new_zeros(t_len, *h0.shape)
+    outs, h = [], h0
+    for start, end in itertools.pairwise(cuts):
+        out, h = gru(x[start:end], h * keep[start])
+        outs.append(out)
+        hiddens[end - 1] = h.detach()
+    return torch.cat(outs), hiddens
 
 
 class Actor(nn.Module):
@@ -26,7 +46,7 @@ class Actor(nn.Module):
             layers += [nn.Linear(width, h), nn.ReLU()]
             width = h
         self.encoder = nn.Sequential(*layers)
-        self.gru = nn.GRUCell(width, spec.gru_hidden)
+        self.gru = nn.GRU(width, spec.gru_hidden)
         self.head = nn.Linear(spec.gru_hidden, spec.num_actions)
         nn.init.orthogonal_(self.head.weight, gain=0.01)  # near-uniform initial policy
         nn.init.zeros_(self.head.bias)
@@ -43,35 +63,29 @@ class Actor(nn.Module):
 
     def step(self, x: Tensor, h: Tensor) -> tuple[Tensor, Tensor]:
         """One step on inputs [X, input_size] and hidden [X, H] -> (logits [X, A], hidden)."""
-        h = self.gru(self.encoder(x), h)
-        return self.head(h), h
+        out, h_next = self.gru(self.encoder(x)[None], h[None])
+        return self.head(out[0]), h_next[0]
 
     def forward_sequence(self, x: Tensor, h0: Tensor, resets: Tensor) -> Tensor:
         """Re-run stored sequences: x [T, X, in], h0 [X, H], resets [T, X] bool (hidden is zeroed
         before step t where resets[t]) -> logits [T, X, A]."""
-        feats = self.encoder(x)
-        keep = (~resets).to(x.dtype).unsqueeze(-1)
-        h = h0
-        hs = []
-        for t in range(x.shape[0]):
-            h = self.gru(feats[t], h * keep[t])
-            hs.append(h)
-        return self.head(torch.stack(hs))
+        out, _ = gru_sequence(self.gru, self.encoder(x), h0[None], resets)
+        return self.head(out)
 
     def tensors(self) -> dict[str, Tensor]:
         """Parameters under the names of ``ActorSpec.tensor_shapes``."""
-        out: dict[str, Tensor] = {}
+        out: dict[str, Tensor | nn.Module] = {}
         linears = [m for m in self.encoder if isinstance(m, nn.Linear)]
         for k, lin in enumerate(linears):
             out[f"encoder.{k}.weight"] = lin.weight
             out[f"encoder.{k}.bias"] = lin.bias
-        out["gru.weight_ih"] = self.gru.weight_ih
-        out["gru.weight_hh"] = self.gru.weight_hh
-        out["gru.bias_ih"] = self.gru.bias_ih
-        out["gru.bias_hh"] = self.gru.bias_hh
+        out["gru.weight_ih"] = self.gru.weight_ih_l0
+        out["gru.weight_hh"] = self.gru.weight_hh_l0
+        out["gru.bias_ih"] = self.gru.bias_ih_l0
+        out["gru.bias_hh"] = self.gru.bias_hh_l0
         out["head.weight"] = self.head.weight
         out["head.bias"] = self.head.bias
-        return out
+        return {k: v for k, v in out.items() if isinstance(v, Tensor)}
 
     def export(self, version: int) -> ActorWeights:
         """The deployable blob (format, version, payload, sha256)."""

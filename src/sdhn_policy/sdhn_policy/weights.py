@@ -4,13 +4,13 @@ NumPy + safetensors only, so actor processes can load weights without torch. Not
 unpickles. Every loader validates format, sha256, tensor names, shapes, dtypes and finiteness
 *before* returning, and raises :class:`WeightsError` with the reason otherwise.
 
-Bytes form (fields of the ROS ``sdhn_msgs/PolicyWeights`` message)::
+Bytes form (the fields of the ROS ``sdhn_msgs/PolicyWeights`` message)::
 
     blob = encode_actor(spec, tensors, version=3)   # ActorWeights(format, version, payload, sha256)
     spec, tensors = decode_actor(blob.format, blob.version, blob.payload, blob.sha256)
 
-File form: ``<stem>.safetensors`` (the payload) plus ``<stem>.json`` (format, version, sha256, spec),
-both written atomically (temp file, fsync, rename)::
+File form: ``<stem>.safetensors`` (the payload) plus ``<stem>.json`` (format, version, sha256,
+spec), both written atomically (temp file, fsync, rename)::
 
     save_actor_file("actor.safetensors", blob); blob = load_actor_file("actor.safetensors")
 """
@@ -126,7 +126,8 @@ def validate_tensors(spec: ActorSpec, tensors: dict[str, np.ndarray]) -> Tensors
     missing = sorted(set(expected) - set(tensors))
     extra = sorted(set(tensors) - set(expected))
     if missing or extra:
-        raise WeightsError(f"tensor names do not match the spec: missing {missing}, unexpected {extra}")
+        raise WeightsError(
+            f"tensor names do not match the spec: missing {missing}, unexpected {extra}")
     out: Tensors = {}
     for name, shape in expected.items():
         a = tensors[name]
@@ -182,7 +183,8 @@ def decode_actor(fmt: str, version: int, payload: bytes, sha256: str) -> tuple[A
         raise WeightsError(f"sha256 mismatch: message says {sha256}, payload hashes to {actual}")
     meta = _read_metadata(payload)
     if meta.get("format") != ACTOR_FORMAT:
-        raise WeightsError(f"payload metadata format is {meta.get('format')!r}, not {ACTOR_FORMAT!r}")
+        raise WeightsError(
+            f"payload metadata format is {meta.get('format')!r}, not {ACTOR_FORMAT!r}")
     if meta.get("version") != str(int(version)):
         raise WeightsError(f"payload version {meta.get('version')} != message version {version}")
     try:

@@ -33,8 +33,7 @@ def env_snapshot(env: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     scalars and random generators (attributes of other types are static configuration or
     per-step scratch and are not saved). Returns (arrays, JSON-able values)."""
     if hasattr(env, "state_dict"):
-        arrays = dict(env.state_dict())
-        return arrays, {}
+        return dict(env.state_dict()), {}
     arrays: dict[str, np.ndarray] = {}
     values: dict[str, Any] = {}
     for k, v in vars(env).items():
@@ -120,7 +119,8 @@ def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, 
     except (OSError, json.JSONDecodeError) as e:
         raise CheckpointError(f"cannot read checkpoint {path}: {e}") from e
     if meta.get("format") != CHECKPOINT_FORMAT:
-        raise CheckpointError(f"{path}: format {meta.get('format')!r}, expected {CHECKPOINT_FORMAT}")
+        raise CheckpointError(
+            f"{path}: format {meta.get('format')!r}, expected {CHECKPOINT_FORMAT}")
     if sha256_hex(payload) != meta.get("tensors_sha256"):
         raise CheckpointError(f"{path}: tensors file does not match its sha256")
     return st_load(payload), meta

@@ -13,7 +13,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from sdhn_train.config import Config, ConfigError, apply_dict, describe, load_yaml, set_field, validate
+from sdhn_train.config import (
+    Config,
+    ConfigError,
+    apply_dict,
+    describe,
+    load_yaml,
+    set_field,
+    validate,
+)
 
 SHORTCUTS = {  # --flag -> config field
     "env": "env.name", "algo": "algo.name", "seed": "train.seed",
@@ -59,7 +67,8 @@ def config_from_args(args: argparse.Namespace) -> Config:
 def latest_checkpoint(path: Path) -> Path:
     """A checkpoint stem from a stem, a .json/.safetensors file, or a run directory (latest)."""
     if path.is_dir():
-        found = sorted((path / "checkpoints").glob("step_*.json")) or sorted(path.glob("step_*.json"))
+        found = (sorted((path / "checkpoints").glob("step_*.json"))
+                 or sorted(path.glob("step_*.json")))
         if not found:
             raise ConfigError(f"--resume {path}: no checkpoints in that directory")
         return found[-1].with_suffix("")

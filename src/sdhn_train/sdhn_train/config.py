@@ -1,13 +1,12 @@
 """Typed training configuration: one dataclass per concern, a help string per field.
 
-Load order: defaults <- YAML file (``--config``) <- CLI shortcuts (``--env`` ...) <- ``--set a.b=v``.
+Load order: defaults <- YAML (``--config``) <- CLI shortcuts (``--env`` ...) <- ``--set a.b=v``.
 ``validate`` runs before anything starts and raises ConfigError naming the field and the allowed
 values.
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import types
 import typing
@@ -28,9 +27,8 @@ class ConfigError(ValueError):
     """Invalid configuration; the message names the field and the allowed values."""
 
 
-def opt(default: Any, help: str) -> Any:  # noqa: A002 - "help" reads best in the tables below
-    if isinstance(default, (list, dict, tuple)):
-        return field(default_factory=lambda: copy.deepcopy(default), metadata={"help": help})
+def opt(default: Any, help: str) -> Any:
+    """A dataclass field with an immutable default and its help string."""
     return field(default=default, metadata={"help": help})
 
 
@@ -38,6 +36,7 @@ def opt(default: Any, help: str) -> Any:  # noqa: A002 - "help" reads best in th
 class EnvConfig:
     name: str = opt("maif-10", f"environment, one of {', '.join(ENV_NAMES)}")
     num_envs: int = opt(32, "B: environments stepped together in one process")
+    max_steps: int | None = opt(None, "episode step limit; null = the environment's (500 MAIF)")
 
 
 @dataclass
@@ -47,7 +46,8 @@ class AlgoConfig:
 
 @dataclass
 class ActorConfig:
-    hidden_sizes: list[int] = opt([64], "MLP encoder widths before the GRU")
+    hidden_sizes: list[int] = field(default_factory=lambda: [64],
+                                    metadata={"help": "MLP encoder widths before the GRU"})
     gru_hidden: int = opt(64, "GRU hidden size")
     use_robot_id: bool = opt(False, "append a one-hot robot id to each local observation")
 
@@ -67,7 +67,7 @@ class PPOConfig:
     max_grad_norm: float = opt(10.0, "gradient-norm clip for actor and critic")
     normalize_advantages: bool = opt(True, "standardise advantages per minibatch")
     target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
-                                         "null = algorithm default (sdhn 0.01, mappo 1 = no target)")
+                                         "null = algorithm default (sdhn 0.01, mappo 1 = none)")
     reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
 
 
@@ -89,7 +89,8 @@ class SDHNConfig:
 
 @dataclass
 class MAPPOConfig:
-    critic_hidden: list[int] = opt([64, 64], "MLP critic widths")
+    critic_hidden: list[int] = field(default_factory=lambda: [64, 64],
+                                     metadata={"help": "MLP critic widths"})
 
 
 @dataclass
@@ -140,9 +141,9 @@ def _coerce(path: str, tp: Any, value: Any) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if origin in (typing.Union, types.UnionType):
-        if value is None or (isinstance(value, str) and value.lower() in ("null", "none")):
-            if type(None) in args:
-                return None
+        is_null = value is None or (isinstance(value, str) and value.lower() in ("null", "none"))
+        if is_null and type(None) in args:
+            return None
         inner = [a for a in args if a is not type(None)]
         return _coerce(path, inner[0], value)
     if origin is list:
@@ -223,7 +224,8 @@ def validate(cfg: Config) -> None:
         "ppo.epochs": cfg.ppo.epochs, "ppo.num_minibatches": cfg.ppo.num_minibatches,
         "sdhn.num_hyperedges": cfg.sdhn.num_hyperedges,
         "sdhn.generator_hidden": cfg.sdhn.generator_hidden,
-        "sdhn.generator_layers": cfg.sdhn.generator_layers, "sdhn.hgcn_hidden": cfg.sdhn.hgcn_hidden,
+        "sdhn.generator_layers": cfg.sdhn.generator_layers,
+        "sdhn.hgcn_hidden": cfg.sdhn.hgcn_hidden,
         "sdhn.hgcn_layers": cfg.sdhn.hgcn_layers, "sdhn.state_hidden": cfg.sdhn.state_hidden,
         "actor.gru_hidden": cfg.actor.gru_hidden, "eval.episodes": cfg.eval.episodes,
     }
@@ -232,14 +234,16 @@ def validate(cfg: Config) -> None:
     for path, v in {"eval.interval": cfg.eval.interval,
                     "log.checkpoint_interval": cfg.log.checkpoint_interval}.items():
         need(v >= 0, path, "an integer >= 0 (0 = never / end only)", v)
+    need(cfg.env.max_steps is None or cfg.env.max_steps >= 1, "env.max_steps",
+         "an integer >= 1 or null", cfg.env.max_steps)
     need(cfg.ppo.num_minibatches <= cfg.env.num_envs, "ppo.num_minibatches",
          f"1..env.num_envs ({cfg.env.num_envs})", cfg.ppo.num_minibatches)
     need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",
          cfg.actor.hidden_sizes)
     need(len(cfg.mappo.critic_hidden) >= 1 and all(h >= 1 for h in cfg.mappo.critic_hidden),
          "mappo.critic_hidden", "one or more widths >= 1", cfg.mappo.critic_hidden)
-    for path, v in {"ppo.lr": cfg.ppo.lr, "ppo.critic_lr": cfg.ppo.critic_lr}.items():
-        need(v is None or v > 0, path, "a number > 0 or null", v)
+    for path, lr in {"ppo.lr": cfg.ppo.lr, "ppo.critic_lr": cfg.ppo.critic_lr}.items():
+        need(lr is None or lr > 0, path, "a number > 0 or null", lr)
     need(0.0 <= cfg.ppo.gamma <= 1.0, "ppo.gamma", "[0, 1]", cfg.ppo.gamma)
     need(0.0 <= cfg.ppo.gae_lambda <= 1.0, "ppo.gae_lambda", "[0, 1]", cfg.ppo.gae_lambda)
     need(0.0 < cfg.ppo.clip < 1.0, "ppo.clip", "(0, 1)", cfg.ppo.clip)
@@ -258,7 +262,7 @@ def describe() -> str:
     """Every field with its default and help string (for ``--help``)."""
     lines = []
     for sec in dataclasses.fields(Config):
-        section = sec.default_factory()  # type: ignore[misc]
+        section = getattr(Config(), sec.name)
         for f in dataclasses.fields(section):
             lines.append(f"  {sec.name}.{f.name} = {getattr(section, f.name)!r}: "
                          f"{f.metadata.get('help', '')}")

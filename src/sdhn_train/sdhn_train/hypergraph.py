@@ -6,10 +6,13 @@ Shapes: X = any batch, N robots, M hyperedges, F features.
 
 from __future__ import annotations
 
+import itertools
 from typing import Literal
 
 import torch
 from torch import Tensor, nn
+
+from sdhn_policy.actor_torch import gru_sequence
 
 Noise = Literal["logistic", "gumbel_paper"]
 NOISES: tuple[str, ...] = ("logistic", "gumbel_paper")
@@ -37,20 +40,14 @@ class HypergraphGenerator(nn.Module):
 
     def forward_sequence(self, obs: Tensor, h0: Tensor, resets: Tensor) -> tuple[Tensor, Tensor]:
         """obs [T, B, N, D], h0 [L, B, Hg], resets [T, B] -> (logits [T, B, N, M], hiddens
-        [T, L, B, Hg]: the hidden state after each step; the last one carries on).
+        [T, L, B, Hg]: the hidden state after step t, valid at the last step and at steps
+        followed by a reset -- see ``gru_sequence``).
 
         Where resets[t], the hidden state is zeroed before step t (a new episode starts)."""
         t_len, b = obs.shape[:2]
-        z = self.encoder(obs.reshape(t_len, b, -1))
-        keep = (~resets).to(z.dtype)[:, None, :, None]  # [T, 1, B, 1]
-        h = h0
-        outs, hs = [], []
-        for t in range(t_len):
-            out, h = self.gru(z[t : t + 1], h * keep[t])
-            outs.append(out[0])
-            hs.append(h)
-        logits = self.to_logits(torch.stack(outs))
-        return logits.reshape(t_len, b, self.num_robots, self.num_hyperedges), torch.stack(hs)
+        out, hiddens = gru_sequence(self.gru, self.encoder(obs.reshape(t_len, b, -1)), h0, resets)
+        logits = self.to_logits(out)
+        return logits.reshape(t_len, b, self.num_robots, self.num_hyperedges), hiddens
 
 
 class _StraightThroughStep(torch.autograd.Function):
@@ -128,7 +125,7 @@ class HGCN(nn.Module):
     def __init__(self, in_features: int, hidden: int, num_layers: int = 2) -> None:
         super().__init__()
         sizes = [in_features] + [hidden] * num_layers
-        self.layers = nn.ModuleList(HGCNLayer(a, b) for a, b in zip(sizes, sizes[1:], strict=False))
+        self.layers = nn.ModuleList(HGCNLayer(a, b) for a, b in itertools.pairwise(sizes))
 
     def forward(self, x: Tensor, incidence: Tensor) -> Tensor:
         for layer in self.layers:

@@ -59,7 +59,8 @@ class Rollout:
             if tuple(got) != shape:
                 raise ValueError(f"rollout.{name} has shape {tuple(got)}, expected {shape}")
         if self.actor_h0.shape[:2] != (b, n):
-            raise ValueError(f"rollout.actor_h0 has shape {self.actor_h0.shape}, expected ({b}, {n}, H)")
+            raise ValueError(
+                f"rollout.actor_h0 has shape {self.actor_h0.shape}, expected ({b}, {n}, H)")
 
     @property
     def done(self) -> npt.NDArray[np.bool_]:

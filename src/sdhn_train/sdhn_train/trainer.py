@@ -27,13 +27,13 @@ from sdhn_train.config import Config
 from sdhn_train.ppo import NonFiniteLossError
 from sdhn_train.runner import RolloutCollector, evaluate_greedy
 
-EnvFactory = Callable[[str, int, int], BatchedEnv]
+EnvFactory = Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
 
 
-def default_env_factory(name: str, num_envs: int, seed: int) -> BatchedEnv:
+def default_env_factory(name: str, num_envs: int, seed: int, **overrides: Any) -> BatchedEnv:
     from sdhn_sim.envs import make_env
 
-    return make_env(name, num_envs=num_envs, seed=seed)
+    return make_env(name, num_envs=num_envs, seed=seed, **overrides)
 
 
 def seed_everything(seed: int, deterministic: bool, threads: int) -> np.random.Generator:
@@ -93,8 +93,9 @@ class Trainer:
                  run_dir: Path | None = None) -> None:
         self.cfg = cfg
         self.np_rng = seed_everything(cfg.train.seed, cfg.train.deterministic, cfg.train.threads)
-        self.env = env_factory(cfg.env.name, cfg.env.num_envs, cfg.train.seed)
-        self.eval_env = (env_factory(cfg.env.name, cfg.eval.episodes, cfg.eval.seed)
+        overrides = {} if cfg.env.max_steps is None else {"max_steps": cfg.env.max_steps}
+        self.env = env_factory(cfg.env.name, cfg.env.num_envs, cfg.train.seed, **overrides)
+        self.eval_env = (env_factory(cfg.env.name, cfg.eval.episodes, cfg.eval.seed, **overrides)
                          if cfg.eval.interval > 0 else None)
         self.learner = build_learner(cfg, EnvInfo.of(self.env), self.np_rng)
         self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len)
@@ -141,7 +142,8 @@ class Trainer:
         ckpt.load_module("actor", lr.actor, arrays)
         ckpt.load_module("critic", lr.critic, arrays)
         ckpt.load_module("target", lr.target_critic, arrays)
-        ckpt.optimizer_from_arrays("optim.actor", lr.actor_opt, arrays, meta["optimizers"]["optim.actor"])
+        ckpt.optimizer_from_arrays("optim.actor", lr.actor_opt, arrays,
+                                   meta["optimizers"]["optim.actor"])
         ckpt.optimizer_from_arrays("optim.critic", lr.critic_opt, arrays,
                                    meta["optimizers"]["optim.critic"])
         ckpt.env_restore(self.env, {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},

@@ -1,0 +1,94 @@
+#!/usr/bin/env python3
+"""Learning curves (PNG) from run CSVs written by the trainer (``<run>/metrics.csv``).
+
+    python scripts/plot_curves.py runs/maif-10__sdhn__* runs/maif-10__mappo__* \
+        --tags charts/episodic_return eval/success_rate --out curves.png
+
+Runs are grouped by "<env>__<algo>" (the run-name prefix); each group is drawn as the mean over
+its seeds with a min-max band, on a common step grid.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+
+def read_run(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{tag: (steps, values)} from one metrics.csv (long format: step, wall_time, tag, value)."""
+    series: dict[str, list[tuple[int, float]]] = defaultdict(list)
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            series[row["tag"]].append((int(row["step"]), float(row["value"])))
+    out = {}
+    for tag, pts in series.items():
+        pts.sort()
+        out[tag] = (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
+    return out
+
+
+def group_name(run_dir: Path) -> str:
+    parts = run_dir.name.split("__")
+    return "__".join(parts[:2]) if len(parts) >= 2 else run_dir.name
+
+
+def plot(runs: list[Path], tags: list[str], out: Path, smooth: int = 1) -> None:
+    groups: dict[str, list[dict[str, tuple[np.ndarray, np.ndarray]]]] = defaultdict(list)
+    for run in runs:
+        csv_path = run / "metrics.csv" if run.is_dir() else run
+        groups[group_name(csv_path.parent)].append(read_run(csv_path))
+    fig, axes = plt.subplots(1, len(tags), figsize=(5 * len(tags), 3.6), squeeze=False)
+    for ax, tag in zip(axes[0], tags, strict=True):
+        for name, members in sorted(groups.items()):
+            curves = [m[tag] for m in members if tag in m and len(m[tag][0])]
+            if not curves:
+                continue
+            grid = np.linspace(0, min(c[0][-1] for c in curves), 200)
+            ys = []
+            for steps, raw in curves:
+                vals = raw
+                if smooth > 1 and len(raw) >= smooth:
+                    vals = np.convolve(raw, np.ones(smooth) / smooth, mode="same")
+                ys.append(np.interp(grid, steps, vals))
+            y = np.stack(ys)
+            ax.plot(grid, y.mean(0), label=f"{name} (n={len(ys)})")
+            if len(ys) > 1:
+                ax.fill_between(grid, y.min(0), y.max(0), alpha=0.2)
+        ax.set_title(tag)
+        ax.set_xlabel("team env-steps")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("runs", nargs="+", type=Path, help="run directories or metrics.csv files")
+    p.add_argument("--tags", nargs="+",
+                   default=["charts/episodic_return", "eval/success_rate", "eval/makespan"])
+    p.add_argument("--smooth", type=int, default=1, help="moving-average window (points)")
+    p.add_argument("--out", type=Path, default=Path("curves.png"))
+    args = p.parse_args(argv)
+    missing = [r for r in args.runs if not (r / "metrics.csv" if r.is_dir() else r).exists()]
+    if missing:
+        print(f"plot_curves: no metrics.csv in {', '.join(map(str, missing))}", file=sys.stderr)
+        return 2
+    plot(args.runs, args.tags, args.out, args.smooth)
+    print(args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,257 @@
+"""Read sdhn MCAP recordings (no ROS graph needed): messages, truncation, episode summaries, frames.
+
+    rec = read_recording("run.mcap")        # never raises on a damaged file: see rec.truncated
+    rows = episode_rows(rec)                # EpisodeSummary messages, else recomputed from state
+    frames = episode_frames(rec, 3)         # [T+1] RGB images of episode 3 (MAIF)
+
+Reading is sequential (``mcap.stream_reader.StreamReader`` chunk by chunk), so a file whose writer
+crashed (no summary section, a half-written last chunk) yields every message of every complete
+chunk, and ``rec.truncated`` says where it stopped. Messages are CDR; they are decoded with
+rclpy's serializer against the installed ``sdhn_msgs`` classes.
+
+Recomputing a summary from ``TeamState`` (for episodes whose ``episode`` message is absent): length
+= step of the terminal state; return = sum of ``team_reward`` over steps 1..length; completed =
+terminated; makespan = length when completed; missed = sum of ``missed_actions``; policy version =
+the newest version among the episode's recorded actions. Collisions and formation error are not in
+TeamState, so they stay unknown (None) there.
+
+Frames: rendered from the recorded positions. MAIF obstacles and goals are not in the messages; the
+instance is found in the environment's instance set as the one whose start cells equal the
+positions at step 0 (and whose obstacles no recorded position enters). Without a match (RWARE, or a
+recording that missed step 0) the frames show robots on a blank grid.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from rclpy.serialization import deserialize_message
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    topic: str
+    type_name: str
+    log_time_ns: int
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Truncation:
+    messages: int  # messages read before the damage
+    last_chunk_end_ns: int | None  # log time of the last message of the last complete chunk
+    last_chunk_offset: int | None  # byte offset just after the last complete chunk
+    reason: str
+
+    def line(self) -> str:
+        where = ("no complete chunk" if self.last_chunk_offset is None
+                 or self.last_chunk_end_ns is None else
+                 f"last complete chunk at byte {self.last_chunk_offset} "
+                 f"(log time {self.last_chunk_end_ns / 1e9:.3f} s)")
+        return f"recording truncated after {self.messages} messages; {where} ({self.reason})"
+
+
+@dataclass
+class Recording:
+    path: Path
+    messages: list[RawMessage] = field(default_factory=list)
+    truncated: Truncation | None = None
+
+    def topics(self) -> dict[str, int]:
+        counts: dict[str, int] = {}
+        for m in self.messages:
+            counts[m.topic] = counts.get(m.topic, 0) + 1
+        return counts
+
+    def decoded(self, suffix: str) -> Iterator[tuple[RawMessage, Any]]:
+        """(raw, message) of every message whose topic ends with ``suffix`` (e.g. '/state')."""
+        for m in self.messages:
+            if m.topic.endswith(suffix):
+                yield m, decode(m)
+
+
+class NotMcapError(ValueError):
+    """The file is not an MCAP recording at all."""
+
+
+def message_class(type_name: str) -> Any:
+    package, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+def decode(m: RawMessage) -> Any:
+    return deserialize_message(m.data, message_class(m.type_name))
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Every message of every complete chunk, in file order. Raises NotMcapError only when the
+    file does not even start like an MCAP file; any later damage sets ``truncated``."""
+    path = Path(path)
+    rec = Recording(path)
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}
+    last_end: int | None = None
+    last_offset: int | None = None
+
+    def take(record: Any) -> None:
+        if isinstance(record, Schema):
+            schemas[record.id] = record.name
+        elif isinstance(record, Channel):
+            channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
+        elif isinstance(record, Message) and record.channel_id in channels:
+            topic, type_name = channels[record.channel_id]
+            rec.messages.append(RawMessage(topic, type_name, record.log_time, bytes(record.data)))
+
+    with path.open("rb") as stream:
+        if stream.read(8) != b"\x89MCAP0\r\n":
+            raise NotMcapError(f"{path} is not an MCAP file (bad magic)")
+        stream.seek(0)
+        reader = StreamReader(stream, emit_chunks=True, record_size_limit=1 << 31)
+        try:
+            for record in reader.records:
+                if isinstance(record, Chunk):
+                    inner = breakup_chunk(record, validate_crc=True)
+                    for r in inner:
+                        take(r)
+                    last_end, last_offset = record.message_end_time, stream.tell()
+                else:
+                    take(record)
+        except Exception as e:  # any damage ends the readable part, by design
+            reason = type(e).__name__ + (f": {e}" if str(e) else "")
+            rec.truncated = Truncation(len(rec.messages), last_end, last_offset, reason[:120])
+    return rec
+
+
+# --- episode summaries ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class EpisodeRow:
+    episode: int
+    env_name: str
+    length: int
+    completed: bool
+    makespan: int | None  # None = NC
+    episode_return: float
+    collisions: int | None  # None = unknown (recomputed from state)
+    missed_actions: int
+    policy_version: int
+    source: str  # "episode" (the simulator's summary) or "state" (recomputed)
+
+
+def summaries_from_messages(rec: Recording) -> dict[int, EpisodeRow]:
+    rows = {}
+    for _, m in rec.decoded("/episode"):
+        rows[int(m.episode)] = EpisodeRow(
+            int(m.episode), str(m.env_name), int(m.length), bool(m.completed),
+            int(m.makespan) if m.completed else None, float(m.episode_return),
+            int(m.collisions), int(m.missed_actions), int(m.policy_version), "episode")
+    return rows
+
+
+def summaries_from_states(rec: Recording) -> dict[int, EpisodeRow]:
+    """Episodes whose terminal TeamState was recorded, recomputed from the states (see above)."""
+    steps: dict[int, dict[int, Any]] = {}
+    for _, s in rec.decoded("/state"):
+        steps.setdefault(int(s.episode), {})[int(s.step)] = s
+    versions: dict[int, int] = {}
+    for raw in rec.messages:
+        if raw.topic.endswith("/action"):
+            a = decode(raw)
+            versions[int(a.episode)] = max(versions.get(int(a.episode), 0), int(a.policy_version))
+    rows = {}
+    for episode, by_step in steps.items():
+        last = by_step[max(by_step)]
+        if not (last.terminated or last.truncated):
+            continue  # the recording ended inside this episode
+        length = int(last.step)
+        rewards = [float(by_step[t].team_reward) for t in range(1, length + 1) if t in by_step]
+        missed = sum(int(by_step[t].missed_actions) for t in range(1, length + 1) if t in by_step)
+        completed = bool(last.terminated)
+        rows[episode] = EpisodeRow(episode, str(last.env_name), length, completed,
+                                   length if completed else None, float(np.sum(rewards)), None,
+                                   missed, versions.get(episode, 0), "state")
+    return rows
+
+
+def episode_rows(rec: Recording) -> list[EpisodeRow]:
+    """One row per finished episode: the simulator's summary where recorded, else recomputed."""
+    rows = summaries_from_states(rec)
+    rows.update(summaries_from_messages(rec))
+    return [rows[k] for k in sorted(rows)]
+
+
+def format_rows(rows: list[EpisodeRow]) -> str:
+    head = (f"{'episode':>7} {'length':>6} {'done':>5} {'makespan':>8} {'return':>10} "
+            f"{'collisions':>10} {'missed':>6} {'version':>7}  source")
+    lines = [head]
+    for r in rows:
+        lines.append(
+            f"{r.episode:>7} {r.length:>6} {'yes' if r.completed else 'no':>5} "
+            f"{r.makespan if r.makespan is not None else 'NC':>8} {r.episode_return:>10.3f} "
+            f"{r.collisions if r.collisions is not None else '-':>10} {r.missed_actions:>6} "
+            f"{r.policy_version:>7}  {r.source}")
+    return "\n".join(lines)
+
+
+# --- frames --------------------------------------------------------------------------------------
+
+
+@dataclass
+class EpisodeFrames:
+    episode: int
+    steps: list[int]
+    images: list[npt.NDArray[np.uint8]]
+    map_note: str
+
+
+def find_maif_instance(env_name: str, positions: npt.NDArray[np.int64],
+                       all_positions: npt.NDArray[np.int64]
+                       ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64], int] | None:
+    """(obstacles, goals, instance id) of the MAIF instance that starts at ``positions``."""
+    from sdhn_sim.envs.maif_instances import MAIF_CONFIGS, load_instances
+
+    if env_name not in MAIF_CONFIGS:
+        return None
+    inst = load_instances(env_name)
+    for k in range(inst.num_instances):
+        obstacles, starts, goals = inst.instance(k)
+        if starts.shape != positions.shape or not np.array_equal(starts, positions):
+            continue
+        xs, ys = all_positions[..., 0], all_positions[..., 1]
+        inside = (xs >= 0) & (ys >= 0) & (xs < obstacles.shape[1]) & (ys < obstacles.shape[0])
+        if inside.all() and not obstacles[ys, xs].any():
+            return obstacles.astype(bool), goals, k
+    return None
+
+
+def episode_frames(rec: Recording, episode: int, cell_px: int = 16) -> EpisodeFrames:
+    """One RGB image per recorded TeamState of ``episode`` (KeyError if none was recorded)."""
+    from sdhn_sim.envs.render import render_grid
+
+    states = sorted(((int(s.step), s) for _, s in rec.decoded("/state")
+                     if int(s.episode) == episode), key=lambda x: x[0])
+    if not states:
+        raise KeyError(episode)
+    positions = np.stack([np.frombuffer(s.positions, dtype=np.int32).astype(np.int64).reshape(-1, 2)
+                          for _, s in states])  # [T, N, 2]
+    env_name = str(states[0][1].env_name)
+    found = (find_maif_instance(env_name, positions[0], positions) if states[0][0] == 0
+             else None)
+    if found is not None:
+        obstacles, goals, k = found
+        note = f"map: {env_name} instance {k} (matched by start cells)"
+    else:
+        size = int(positions.max()) + 1 if positions.size else 1
+        obstacles, goals = np.zeros((size, size), bool), None
+        note = f"map: none found for {env_name}; robots on a blank grid"
+    images = [render_grid(obstacles, p, goals, cell_px) for p in positions]
+    return EpisodeFrames(episode, [t for t, _ in states], images, note)

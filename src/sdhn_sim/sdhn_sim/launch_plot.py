@@ -1,5 +1,6 @@
 """Plot a launched run: per-episode return and makespan from ``<run_dir>/episodes.csv`` (written by
-the launcher), next to the training curve of an in-process run's ``metrics.csv`` when given.
+the launcher), next to a training curve when given: the per-episode returns of a launcher run in
+train mode (its ``episodes.csv``), or the ``metrics.csv`` of an in-process training run.
 
     python -m sdhn_sim.launch_plot RUN_DIR [--train-run TRAIN_RUN_DIR] [--out PNG]
 """
@@ -19,6 +20,15 @@ def read_episodes(run_dir: Path) -> list[dict[str, str]]:
 
 def read_train_curve(train_run: Path,
                      tag: str = "charts/episodic_return") -> list[tuple[int, float]]:
+    """(team env-steps, episode return) points of a training run."""
+    episodes = read_episodes(train_run)
+    if episodes:
+        steps = 0
+        points = []
+        for e in episodes:
+            steps += int(e["length"])
+            points.append((steps, float(e["return"])))
+        return points
     path = train_run / "metrics.csv"
     if not path.exists():
         return []
@@ -50,7 +60,7 @@ def plot_run(run_dir: Path, train_run: Path | None = None, out: Path | None = No
                 ylabel="steps")
     if curve:
         axes[2].plot([s for s, _ in curve], [v for _, v in curve], marker="o")
-        axes[2].set(title="in-process training: episode return", xlabel="team env-steps",
+        axes[2].set(title="training: episode return", xlabel="team env-steps",
                     ylabel="team return")
     fig.tight_layout()
     out = out or run_dir / "episodes.png"

@@ -224,6 +224,14 @@ def test_add_viz_upgrades_a_plain_recording_with_equal_scenes(run: Run) -> None:
     assert not upgraded.with_name("plain-viz-viz.mcap").exists()
 
 
+def test_rate_republishes_only_the_ros_topics_of_a_viz_recording(run: Run) -> None:
+    done = subprocess.run([*REPLAY, str(run.viz), "--rate", "100", "--wait", "0"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    ros_topics = [t for t in read_recording(run.viz).topics() if not t.startswith("/viz/")]
+    assert f"on {len(ros_topics)} topics" in done.stdout, done.stdout
+
+
 def test_foxglove_serves_a_recording_and_a_busy_port_is_one_line(run: Run) -> None:
     _, states = state_keys(run.viz)
     first = np.frombuffer(states[min(states)].positions, np.int32).reshape(-1, 2).tolist()

@@ -96,7 +96,7 @@ class VizWorker:
         self.queue: queue.Queue[tuple[str, str, bytes, int] | None] = queue.Queue(VIZ_QUEUE)
         self.skipped = 0
         self.error: str | None = None
-        self.busy_s: Counter[str] = Counter()  # per kind, the first message (warm-up) excluded
+        self.busy_s: dict[str, float] = {}  # per kind, the first message (warm-up) excluded
         self.timed: Counter[str] = Counter()
         self.thread = threading.Thread(target=self.run, name="viz", daemon=True)
         self.thread.start()
@@ -127,7 +127,7 @@ class VizWorker:
             finally:
                 self.timed[kind] += 1
                 if self.timed[kind] > 1:  # the first of a kind loads instance sets: warm-up
-                    self.busy_s[kind] += time.thread_time() - t0
+                    self.busy_s[kind] = self.busy_s.get(kind, 0.0) + time.thread_time() - t0
 
     def stop(self) -> None:
         """Finish what is queued (bounded by VIZ_QUEUE) and end the thread."""

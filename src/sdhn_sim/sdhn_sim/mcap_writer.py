@@ -43,6 +43,11 @@ class McapRosWriter:
         self._sequence: dict[str, int] = {}
         self.messages_written = 0
 
+    @property
+    def mcap(self) -> Writer:
+        """The underlying ``mcap`` writer, to add channels of other encodings (viz_channels)."""
+        return self._writer
+
     def _channel(self, topic: str, type_name: str) -> int:
         channel = self._channels.get(topic)
         if channel is None:

@@ -17,14 +17,27 @@ Which topics, with which QoS:
 One file per run: an existing ``output`` is never overwritten (``-1``, ``-2``... is appended).
 The file is finalised (summary, index) on SIGINT/SIGTERM; a crash leaves it readable up to the
 last complete chunk (``sdhn_sim replay`` says where it stops).
+
+Viz channels (parameter ``viz``, default true): the team's ``state``, ``hypergraph`` and
+``episode`` messages are also turned into the viz node's Foxglove channels (``/viz/scene``,
+``/viz/hypergraph``, ``/viz/hypergraph/p_h``, ``/viz/metrics``, ``/viz/episodes``; protobuf and
+JSON, see ``sdhn_sim.viz_channels``) in the same file, so a recording opens as pictures. The
+subscription callback only queues the raw CDR (a few microseconds); a worker thread deserialises,
+renders and writes (under the writer's lock), each viz message with its source's log time. If the
+worker falls ``VIZ_QUEUE`` messages behind, viz for the newest is skipped and counted: the raw
+recording always comes first, and ``replay --add-viz`` can rebuild the viz from a ``viz:=false``
+recording.
 """
 
 from __future__ import annotations
 
 import functools
 import importlib
+import queue
 import re
+import threading
 import time
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -32,13 +45,17 @@ from typing import Any
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 
 from sdhn_sim.base_node import ConfigError, run_node
 from sdhn_sim.mcap_schema import ros2msg_schema
 from sdhn_sim.mcap_writer import McapRosWriter
 from sdhn_sim.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.recording import fresh_path
+from sdhn_sim.viz_channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5
+VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
 STATUS_PERIOD_S = 5.0
 CONTRACT_TOPICS = {  # relative to team_ns: (type, profile)
     "state": ("sdhn_msgs/msg/TeamState", STEP),
@@ -69,14 +86,63 @@ def profile_for(publisher_qos: list[QoSProfile]) -> QoSProfile:
     return STEP
 
 
-def fresh_path(path: Path) -> Path:
-    """``path`` if it does not exist yet, else ``<stem>-1<suffix>``, ``-2``... (never clobber)."""
-    if not path.exists():
-        return path
-    k = 1
-    while (candidate := path.with_name(f"{path.stem}-{k}{path.suffix}")).exists():
-        k += 1
-    return candidate
+class VizWorker:
+    """Derives the viz channels from queued raw team messages on its own thread."""
+
+    def __init__(self, channels: VizMcapChannels, lock: threading.Lock) -> None:
+        self.channels = channels
+        self.lock = lock
+        self.deriver = VizDeriver()
+        self.queue: queue.Queue[tuple[str, str, bytes, int] | None] = queue.Queue(VIZ_QUEUE)
+        self.skipped = 0
+        self.error: str | None = None
+        self.busy_s: dict[str, float] = {}  # per kind, the first message (warm-up) excluded
+        self.timed: Counter[str] = Counter()
+        self.thread = threading.Thread(target=self.run, name="viz", daemon=True)
+        self.thread.start()
+
+    def offer(self, kind: str, type_name: str, data: bytes, log_time_ns: int) -> None:
+        """The hot path: queue the message, or count it as skipped when the worker is behind."""
+        try:
+            self.queue.put_nowait((kind, type_name, data, log_time_ns))
+        except queue.Full:
+            self.skipped += 1
+
+    def run(self) -> None:
+        while (item := self.queue.get()) is not None:
+            kind, type_name, data, log_time_ns = item
+            t0 = time.thread_time()  # CPU of this thread: waits for the GIL do not count
+            try:
+                msg = deserialize_message(data, message_class(type_name))
+            except Exception:  # malformed CDR: counted like any message that cannot be drawn
+                self.deriver.dropped[f"{kind}/undecodable"] += 1
+                continue
+            try:
+                out = self.deriver.derive(kind, msg, log_time_ns)
+                with self.lock:
+                    self.channels.write(out)
+            except Exception as e:  # a bug here must never stop the raw recording
+                self.error = f"{type(e).__name__}: {e}"
+                return
+            finally:
+                self.timed[kind] += 1
+                if self.timed[kind] > 1:  # the first of a kind loads instance sets: warm-up
+                    self.busy_s[kind] = self.busy_s.get(kind, 0.0) + time.thread_time() - t0
+
+    def stop(self) -> None:
+        """Finish what is queued (bounded by VIZ_QUEUE) and end the thread."""
+        if self.thread.is_alive():
+            self.queue.put(None)
+            self.thread.join()
+
+    def summary(self) -> str:
+        written = sum(self.deriver.written.values())
+        cost = "".join(f", {self.busy_s[k] / (self.timed[k] - 1) * 1e3:.2f} ms per {k}"
+                       for k in sorted(self.timed) if self.timed[k] > 1)
+        dropped = ", ".join(f"{k}={v}" for k, v in sorted(self.deriver.dropped.items()))
+        return (f"viz: {written} messages{cost}; skipped (worker behind) {self.skipped}; "
+                f"dropped {dropped or 'none'}"
+                + (f"; STOPPED by {self.error}" if self.error else ""))
 
 
 class RecorderNode(Node):
@@ -84,6 +150,9 @@ class RecorderNode(Node):
         super().__init__("recorder", context=context)
         output = self.declare_parameter("output", "").value
         team_ns = self.declare_parameter("team_ns", "/sdhn").value
+        viz = self.declare_parameter("viz", True).value
+        if not isinstance(viz, bool):
+            raise ConfigError(f"viz: {viz!r}; allowed: true (write /viz/* channels) or false")
         if not isinstance(output, str):
             raise ConfigError(f"output: {output!r}; allowed: a path of a .mcap file, or '' "
                               "(runs/recording-<time>.mcap)")
@@ -95,6 +164,9 @@ class RecorderNode(Node):
         self.path = fresh_path(requested)
         self.ns = team_ns.rstrip("/")
         self.writer = McapRosWriter(self.path)
+        self.lock = threading.Lock()  # the viz worker writes into the same MCAP writer
+        self.viz = (VizWorker(VizMcapChannels(self.writer.mcap), self.lock) if viz else None)
+        self._viz_kinds = {f"{self.ns}/{kind}": kind for kind in KINDS.values()}
         self.counts: dict[str, int] = {}
         self.skipped: set[str] = set()
         self._subs: dict[str, Any] = {}
@@ -108,6 +180,7 @@ class RecorderNode(Node):
         self.create_timer(DISCOVERY_PERIOD_S, self.discover)
         self.create_timer(STATUS_PERIOD_S, self.log_status)
         note = "" if self.path == requested else f" ({requested} exists)"
+        note += "" if viz else "; no viz channels (viz:=false)"
         self.get_logger().info(f"ready: recording {self.ns}/* to {self.path}{note}")
 
     def record(self, topic: str, type_name: str, profile: QoSProfile) -> None:
@@ -146,7 +219,11 @@ class RecorderNode(Node):
 
     def on_message(self, topic: str, type_name: str, data: bytes) -> None:
         # time.time_ns() is the ROS system clock without rclpy's ~17 us per call (no sim time here)
-        self.writer.write_serialized(topic, type_name, data, time.time_ns())
+        now = time.time_ns()
+        with self.lock:
+            self.writer.write_serialized(topic, type_name, data, now)
+        if self.viz is not None and (kind := self._viz_kinds.get(topic)) is not None:
+            self.viz.offer(kind, type_name, data, now)
         self.counts[topic] += 1
         self._bytes += len(data)
 
@@ -161,10 +238,15 @@ class RecorderNode(Node):
             self.get_logger().info(line)
 
     def stop(self) -> None:
-        self.writer.close()
+        if self.viz is not None:
+            self.viz.stop()
+        with self.lock:
+            self.writer.close()
         per_topic = ", ".join(f"{t}={c}" for t, c in sorted(self.counts.items()) if c)
         self.get_logger().info(f"closed {self.path}: {self.writer.messages_written} messages "
                                f"({self._bytes / 1e6:.2f} MB); {per_topic}")
+        if self.viz is not None:
+            self.get_logger().info(self.viz.summary())
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from mcap.records import Channel, Chunk, Message, Schema
+from mcap.records import Channel, Chunk, Header, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rclpy.serialization import deserialize_message
 
@@ -39,9 +39,13 @@ from rclpy.serialization import deserialize_message
 @dataclass(frozen=True)
 class RawMessage:
     topic: str
-    type_name: str
+    type_name: str  # the schema name ('sdhn_msgs/msg/TeamState', 'foxglove.SceneUpdate', ...)
     log_time_ns: int
     data: bytes
+    encoding: str = "cdr"  # the channel's message encoding ('cdr', 'protobuf', 'json')
+    channel_id: int = 0
+    publish_time_ns: int = 0
+    sequence: int = 0
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,9 @@ class Recording:
     path: Path
     messages: list[RawMessage] = field(default_factory=list)
     truncated: Truncation | None = None
+    profile: str = ""
+    schemas: dict[int, Schema] = field(default_factory=dict)  # as read, to copy a recording
+    channels: dict[int, Channel] = field(default_factory=dict)
 
     def topics(self) -> dict[str, int]:
         counts: dict[str, int] = {}
@@ -72,9 +79,10 @@ class Recording:
         return counts
 
     def decoded(self, suffix: str) -> Iterator[tuple[RawMessage, Any]]:
-        """(raw, message) of every message whose topic ends with ``suffix`` (e.g. '/state')."""
+        """(raw, message) of every CDR message whose topic ends with ``suffix`` (e.g. '/state');
+        viz channels (protobuf/JSON, e.g. '/viz/hypergraph') are never decoded here."""
         for m in self.messages:
-            if m.topic.endswith(suffix):
+            if m.encoding == "cdr" and m.topic.endswith(suffix):
                 yield m, decode(m)
 
 
@@ -91,24 +99,41 @@ def decode(m: RawMessage) -> Any:
     return deserialize_message(m.data, message_class(m.type_name))
 
 
+def fresh_path(path: Path) -> Path:
+    """``path`` if it does not exist yet, else ``<stem>-1<suffix>``, ``-2``... (never clobber)."""
+    if not path.exists():
+        return path
+    k = 1
+    while (candidate := path.with_name(f"{path.stem}-{k}{path.suffix}")).exists():
+        k += 1
+    return candidate
+
+
 def read_recording(path: str | Path) -> Recording:
     """Every message of every complete chunk, in file order. Raises NotMcapError only when the
     file does not even start like an MCAP file; any later damage sets ``truncated``."""
     path = Path(path)
     rec = Recording(path)
     schemas: dict[int, str] = {}
-    channels: dict[int, tuple[str, str]] = {}
+    channels: dict[int, tuple[str, str, str]] = {}
     last_end: int | None = None
     last_offset: int | None = None
 
     def take(record: Any) -> None:
         if isinstance(record, Schema):
             schemas[record.id] = record.name
+            rec.schemas.setdefault(record.id, record)
         elif isinstance(record, Channel):
-            channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
+            channels[record.id] = (record.topic, schemas.get(record.schema_id, ""),
+                                   record.message_encoding)
+            rec.channels.setdefault(record.id, record)
+        elif isinstance(record, Header):
+            rec.profile = record.profile
         elif isinstance(record, Message) and record.channel_id in channels:
-            topic, type_name = channels[record.channel_id]
-            rec.messages.append(RawMessage(topic, type_name, record.log_time, bytes(record.data)))
+            topic, type_name, encoding = channels[record.channel_id]
+            rec.messages.append(RawMessage(topic, type_name, record.log_time, bytes(record.data),
+                                           encoding, record.channel_id, record.publish_time,
+                                           record.sequence))
 
     with path.open("rb") as stream:
         if stream.read(8) != b"\x89MCAP0\r\n":
@@ -128,6 +153,84 @@ def read_recording(path: str | Path) -> Recording:
             reason = type(e).__name__ + (f": {e}" if str(e) else "")
             rec.truncated = Truncation(len(rec.messages), last_end, last_offset, reason[:120])
     return rec
+
+
+# --- viz channels --------------------------------------------------------------------------------
+
+
+def viz_topics(rec: Recording) -> dict[str, int]:
+    """Message counts of the viz channels (``/viz/...``, protobuf/JSON) the recording holds."""
+    from sdhn_sim.viz_channels import is_viz_channel
+
+    found = {c.topic: 0 for c in rec.channels.values()
+             if is_viz_channel(c.topic, c.message_encoding)}
+    for m in rec.messages:
+        if m.topic in found and is_viz_channel(m.topic, m.encoding):
+            found[m.topic] += 1
+    return found
+
+
+def team_namespace(rec: Recording) -> str | None:
+    """The namespace of the first recorded TeamState topic ('/sdhn'), None without one."""
+    for m in rec.messages:
+        if m.encoding == "cdr" and m.type_name == "sdhn_msgs/msg/TeamState":
+            return m.topic.rsplit("/", 1)[0]
+    return None
+
+
+def team_kind(topic: str, type_name: str, encoding: str, ns: str) -> str | None:
+    """'state' / 'hypergraph' / 'episode' for the team's own CDR topics of those types."""
+    from sdhn_sim.viz_channels import KINDS
+
+    kind = KINDS.get(type_name) if encoding == "cdr" else None
+    if kind is None or topic != f"{ns}/{kind}":
+        return None
+    return kind
+
+
+@dataclass
+class VizUpgrade:
+    out: Path
+    copied: int
+    written: dict[str, int]
+    dropped: dict[str, int]
+    team_ns: str | None
+
+
+def write_with_viz(rec: Recording, out: Path, chunk_bytes: int = 256 * 1024) -> VizUpgrade:
+    """Write ``out``: every message of ``rec`` (same schemas, channels, times, sequence numbers,
+    in file order) plus the viz channels derived from the team's state, hypergraph and episode
+    messages (``sdhn_sim.viz_channels``), each right after its source message."""
+    from mcap.writer import CompressionType, Writer
+
+    from sdhn_sim.viz_channels import VizDeriver, VizMcapChannels
+
+    ns = team_namespace(rec)
+    deriver = VizDeriver()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("wb") as stream:
+        writer = Writer(stream, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
+        writer.start(profile=rec.profile or "ros2", library="sdhn replay --add-viz")
+        schema_ids = {old: writer.register_schema(s.name, s.encoding, s.data)
+                      for old, s in rec.schemas.items()}
+        channel_ids = {old: writer.register_channel(c.topic, c.message_encoding,
+                                                    schema_ids.get(c.schema_id, 0), c.metadata)
+                       for old, c in rec.channels.items()}
+        viz = VizMcapChannels(writer)
+        for m in rec.messages:
+            writer.add_message(channel_ids[m.channel_id], m.log_time_ns, m.data,
+                               m.publish_time_ns, m.sequence)
+            kind = team_kind(m.topic, m.type_name, m.encoding, ns) if ns else None
+            if kind is None:
+                continue
+            try:
+                msg = decode(m)
+            except Exception:  # malformed CDR: counted like any message that cannot be drawn
+                deriver.dropped[f"{kind}/undecodable"] += 1
+                continue
+            viz.write(deriver.derive(kind, msg, m.log_time_ns))
+        writer.finish()
+    return VizUpgrade(out, len(rec.messages), dict(deriver.written), dict(deriver.dropped), ns)
 
 
 # --- episode summaries ---------------------------------------------------------------------------
@@ -164,7 +267,7 @@ def summaries_from_states(rec: Recording) -> dict[int, EpisodeRow]:
         steps.setdefault(int(s.episode), {})[int(s.step)] = s
     versions: dict[int, int] = {}
     for raw in rec.messages:
-        if raw.topic.endswith("/action"):
+        if raw.encoding == "cdr" and raw.topic.endswith("/action"):
             a = decode(raw)
             versions[int(a.episode)] = max(versions.get(int(a.episode), 0), int(a.policy_version))
     rows = {}

@@ -1,4 +1,5 @@
-"""``sdhn_sim replay FILE [--summary] [--rate X] [--export-episode K --out DIR]``.
+"""``sdhn_sim replay FILE [--summary] [--rate X] [--export-episode K --out DIR] [--add-viz
+[--out NEW.mcap]] [--foxglove [--host H] [--port P] [--rate X] [--loop]]``.
 
 --summary          per-episode table: the simulator's EpisodeSummary messages, recomputed from the
                    recorded TeamState for episodes without one (source column says which).
@@ -7,16 +8,28 @@
                    best effort, the rest STEP). Waits up to --wait seconds for subscribers first.
 --export-episode K PNG frames (frame_<step>.png) of episode K rendered from the recorded TeamState
 --out DIR          positions, on the MAIF map matched from the start cells (sdhn_sim.recording).
+--add-viz          write a copy with the viz channels (/viz/scene, /viz/hypergraph,
+--out NEW.mcap     /viz/hypergraph/p_h, /viz/metrics, /viz/episodes) derived from the recorded
+                   team messages, for a recording made with viz:=false (default NEW:
+                   <stem>-viz.mcap beside it, never overwritten; the input is never modified). A
+                   recording that already has them is reported and left alone (exit 0).
+--foxglove         serve the recording's viz channels (the live viz node's) on a Foxglove
+                   WebSocket at ws://HOST:PORT (--host 127.0.0.1, --port 8765, 0 = any free port),
+                   paced by the recorded log times at --rate X (default 1); playback starts when
+                   a client subscribes, ends after the last state (--loop: starts over until
+                   Ctrl-C). A port in use is one line and exit code 2.
 
 With no action flag it prints the topics and message counts. Exit codes: 0 done (also for a
 truncated recording: the readable part is used and one line says where it stops), 1 the requested
-episode is not in the recording, 2 bad arguments or not an MCAP file.
+episode is not in the recording, 2 bad arguments, a port in use, or not an MCAP file.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -26,7 +39,10 @@ from sdhn_sim.recording import (
     episode_frames,
     episode_rows,
     format_rows,
+    fresh_path,
     read_recording,
+    viz_topics,
+    write_with_viz,
 )
 
 
@@ -41,14 +57,33 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="with --rate: seconds to wait for subscribers before publishing")
     parser.add_argument("--export-episode", type=int, default=None, metavar="K",
                         help="write PNG frames of episode K (needs --out)")
-    parser.add_argument("--out", type=Path, default=None, metavar="DIR",
-                        help="directory for --export-episode frames")
+    parser.add_argument("--out", type=Path, default=None, metavar="PATH",
+                        help="directory for --export-episode frames; file for --add-viz")
     parser.add_argument("--cell-px", type=int, default=16, help="pixels per grid cell in frames")
+    parser.add_argument("--add-viz", action="store_true",
+                        help="write a copy with the derived /viz/* channels (--out NEW.mcap)")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="serve the viz channels on a Foxglove WebSocket (--rate = speed)")
+    parser.add_argument("--host", default="127.0.0.1", help="with --foxglove: address to bind")
+    parser.add_argument("--port", type=int, default=8765,
+                        help="with --foxglove: port (0 = any free port)")
+    parser.add_argument("--loop", action="store_true",
+                        help="with --foxglove: start over after the last state until Ctrl-C")
     args = parser.parse_args(argv)
     if args.rate is not None and not args.rate > 0:
         parser.error(f"--rate: {args.rate}; allowed: a number > 0 (1 = recorded speed)")
-    if (args.export_episode is None) != (args.out is None):
+    if args.export_episode is not None and args.add_viz:
+        parser.error("--export-episode and --add-viz: one at a time (each takes --out)")
+    if args.export_episode is not None and args.out is None:
         parser.error("--export-episode K and --out DIR go together")
+    if args.out is not None and args.export_episode is None and not args.add_viz:
+        parser.error("--out goes with --export-episode K or --add-viz")
+    if args.add_viz and args.out is not None and args.out.suffix != ".mcap":
+        parser.error(f"--out: {args.out}; allowed with --add-viz: a path ending in .mcap")
+    if not 0 <= args.port <= 65535:
+        parser.error(f"--port: {args.port}; allowed: 0..65535 (0 = any free port)")
+    if (args.host != "127.0.0.1" or args.port != 8765 or args.loop) and not args.foxglove:
+        parser.error("--host, --port and --loop go with --foxglove")
     if args.cell_px < 3:
         parser.error(f"--cell-px: {args.cell_px}; allowed: >= 3")
     return args
@@ -71,9 +106,14 @@ def main(argv: list[str] | None = None) -> int:
         print(format_rows(episode_rows(rec)))
     if args.export_episode is not None:
         code = export(rec, args.export_episode, args.out, args.cell_px)
-    if args.rate is not None:
+    if args.add_viz:
+        code = max(code, add_viz(rec, args.out))
+    if args.foxglove:
+        code = max(code, serve_foxglove(rec, args.host, args.port, args.rate or 1.0, args.loop))
+    elif args.rate is not None:
         republish(rec, args.rate, args.wait)
-    if not (args.summary or args.export_episode is not None or args.rate is not None):
+    if not (args.summary or args.export_episode is not None or args.rate is not None
+            or args.add_viz or args.foxglove):
         for topic, count in sorted(rec.topics().items()):
             print(f"{count:>8}  {topic}")
     return code
@@ -94,8 +134,114 @@ def export(rec: Recording, episode: int, out: Path, cell_px: int) -> int:
     return 0
 
 
+def add_viz(rec: Recording, out: Path | None) -> int:
+    """Write a copy of ``rec`` with the derived viz channels (see ``write_with_viz``)."""
+    have = viz_topics(rec)
+    if have:
+        counts = ", ".join(f"{t}={c}" for t, c in sorted(have.items()))
+        print(f"replay: {rec.path} already has viz channels ({counts}); nothing written")
+        return 0
+    requested = out or rec.path.with_name(f"{rec.path.stem}-viz.mcap")
+    target = fresh_path(requested)  # never the input, never an existing file
+    done = write_with_viz(rec, target)
+    if done.team_ns is None:
+        print(f"replay: {rec.path} has no sdhn_msgs/TeamState to draw; nothing written")
+        target.unlink()
+        return 0
+    written = ", ".join(f"{t}={c}" for t, c in sorted(done.written.items())) or "none"
+    dropped = ", ".join(f"{k}={v}" for k, v in sorted(done.dropped.items())) or "none"
+    note = "" if target == requested else f" ({requested} exists)"
+    print(f"wrote {target}{note}: {done.copied} recorded messages + viz of {done.team_ns}: "
+          f"{written}; dropped: {dropped}")
+    return 0
+
+
+def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool) -> int:
+    """Serve the viz channels derived from ``rec`` on a Foxglove WebSocket, paced by log time."""
+    import foxglove
+
+    from sdhn_sim.recording import decode, team_kind, team_namespace
+    from sdhn_sim.viz_channels import VIZ_TOPICS, VizDeriver, channel_specs
+
+    ns = team_namespace(rec)
+    if ns is None:
+        print(f"replay: error: {rec.path} has no sdhn_msgs/TeamState to draw", file=sys.stderr)
+        return 2
+    team = [(m, kind) for m in rec.messages
+            if (kind := team_kind(m.topic, m.type_name, m.encoding, ns)) is not None]
+    team.sort(key=lambda mk: mk[0].log_time_ns)
+    from foxglove.websocket import ChannelView, Client, ServerListener
+
+    class FirstSubscriber(ServerListener):
+        """Set once any client subscribes to any channel: playback waits for a viewer."""
+
+        def __init__(self) -> None:
+            self.subscribed = threading.Event()
+
+        def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+            self.subscribed.set()
+
+    fox = foxglove.Context()
+    listener = FirstSubscriber()
+    try:
+        server = foxglove.start_server(name=f"sdhn replay {rec.path.name}", host=host, port=port,
+                                       context=fox, server_listener=listener)
+    except RuntimeError as error:
+        reason = str(error).split(": ", 1)[-1]
+        print(f"replay: error: --port: cannot serve on {host}:{port} ({reason})",
+              file=sys.stderr)
+        return 2
+    channels = {}
+    for topic in VIZ_TOPICS:  # as the live viz node advertises them
+        spec = channel_specs()[topic]
+        if spec.message_encoding == "json":
+            channels[topic] = foxglove.Channel(topic, schema=json.loads(spec.schema_data),
+                                               context=fox)
+        else:
+            schema = foxglove.Schema(name=spec.schema_name, encoding=spec.schema_encoding,
+                                     data=spec.schema_data)
+            channels[topic] = foxglove.Channel(topic, schema=schema,
+                                               message_encoding=spec.message_encoding,
+                                               context=fox)
+    span = (team[-1][0].log_time_ns - team[0][0].log_time_ns) / 1e9 if team else 0.0
+    states = sum(1 for _, k in team if k == "state")
+    print(f"replay: serving {rec.path} on ws://{host}:{server.port} ({states} states, "
+          f"{span:.1f} s recorded, rate {rate}x); playback starts when a client subscribes, "
+          "Ctrl-C stops", flush=True)
+    sent = 0
+    try:
+        while not listener.subscribed.wait(0.1):
+            pass
+        while True:
+            deriver = VizDeriver()
+            start = time.monotonic()
+            t0 = team[0][0].log_time_ns if team else 0
+            for m, kind in team:
+                delay = (m.log_time_ns - t0) / 1e9 / rate - (time.monotonic() - start)
+                if delay > 0:
+                    time.sleep(delay)
+                try:
+                    out = deriver.derive(kind, decode(m), m.log_time_ns)
+                except Exception:  # malformed CDR in the file: skip that message
+                    continue
+                for v in out:
+                    channels[v.topic].log(v.data)
+                    sent += 1
+            print(f"replay: served {sent} viz messages ({states} states) in "
+                  f"{time.monotonic() - start:.2f} s", flush=True)
+            if not loop:
+                time.sleep(0.5)  # let the server hand the last messages over
+                break
+    except KeyboardInterrupt:
+        print(f"replay: stopped after {sent} viz messages", flush=True)
+    finally:
+        server.stop()
+    return 0
+
+
 def republish(rec: Recording, rate: float, wait: float) -> None:
-    """Publish the raw CDR of every message again, paced by the recorded log times / rate."""
+    """Publish the raw CDR of every message again, paced by the recorded log times / rate
+    (viz channels, which are not ROS messages, are left out)."""
     import rclpy
     from rclpy.context import Context
 
@@ -106,8 +252,9 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
     rclpy.init(context=context)
     node = rclpy.create_node("replay", context=context)
     pubs = {}
+    messages = [m for m in rec.messages if m.encoding == "cdr"]
     try:
-        for m in rec.messages:
+        for m in messages:
             if m.topic not in pubs:
                 profile = (LATCHED if m.topic.endswith("/policy/weights") else
                            SENSOR if m.topic.endswith("/hypergraph") else STEP)
@@ -116,7 +263,7 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
         while time.monotonic() < deadline and any(p.get_subscription_count() == 0
                                                   for p in pubs.values()):
             time.sleep(0.05)
-        ordered = sorted(rec.messages, key=lambda m: m.log_time_ns)
+        ordered = sorted(messages, key=lambda m: m.log_time_ns)
         if not ordered:
             return
         t0, start = ordered[0].log_time_ns, time.monotonic()

@@ -42,7 +42,11 @@ echo "[demo] 3/3 results"
 PLOT=$(.venv/bin/python -m sdhn_sim.launch_plot "$RUN_DIR/deploy" --train-run "$RUN_DIR/train")
 MCAP="$RUN_DIR/deploy/recording.mcap"
 [ -f "$MCAP" ] || { echo "[demo] no recording was written"; exit 1; }
+# The recording itself is plain ROS (rosbags, rosbag2 tools read it); its Foxglove copy adds the
+# drawn scene, hypergraph and metrics channels.
+scripts/ros2 run sdhn_sim replay "$MCAP" --add-viz --out "${MCAP%.mcap}-foxglove.mcap" >/dev/null
 echo "[demo] summary:  scripts/ros2 run sdhn_sim replay $MCAP --summary"
 echo "[demo] episodes: $RUN_DIR/deploy/episodes.csv"
 echo "[demo] MCAP:     $MCAP"
+echo "[demo] Foxglove: ${MCAP%.mcap}-foxglove.mcap (open it in Foxglove with configs/foxglove/sdhn_layout.json)"
 echo "[demo] plot:     $PLOT"

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from .envs_helpers import bench_module
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sdhn_sim.envs import make_env, make_single_env
 from sdhn_sim.envs.maif import MaifEnv
+
+from .envs_helpers import bench_module
 
 
 def rollout_positions(env: MaifEnv, actions: np.ndarray):

@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+
 from .envs_helpers import scenario
 
 STAY, UP, DOWN, LEFT, RIGHT = range(5)

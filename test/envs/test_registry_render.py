@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from .envs_helpers import scenario
 
 from sdhn_sim.envs import BatchedEnv, env_names, make_env, make_single_env, robot_colors
 from sdhn_sim.envs.render import OBSTACLE_RGB
+
+from .envs_helpers import scenario
 
 
 def test_names_and_protocol():

@@ -55,7 +55,8 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, s
     weights = node.create_publisher(PolicyWeights, f"{ns}/policy/weights", LATCHED)
     graphs = node.create_publisher(Hypergraph, f"{ns}/hypergraph", SENSOR)
     weights.publish(weights_message(1))  # before the recorder exists: must arrive latched
-    # viz:=false: rosbags (0.11.9) cannot open a file that also holds the protobuf viz channels
+    # viz:=false (the default, named here because it matters): rosbags 0.11.9 cannot open a file
+    # that also holds the protobuf viz channels.
     # (it reads every schema as ROS text); recordings with viz are tested in test_recording_viz
     command = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={out}",
                "-p", f"team_ns:={ns}", "-p", "viz:=false"]

@@ -62,7 +62,7 @@ def random_actor(path: Path) -> Path:
 
 @dataclass
 class Run:
-    viz: Path  # recorded with the default viz:=true
+    viz: Path  # recorded with viz:=true
     plain: Path  # the same run, recorded with viz:=false
     recorder_lines: list[str]
 
@@ -76,7 +76,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     viz, plain = root / "viz.mcap", root / "plain.mcap"
     recorders = [[*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={out}",
                   "-p", f"team_ns:={TEAM_NS}", *extra]
-                 for out, extra in ((viz, []), (plain, ["-p", "viz:=false"]))]
+                 for out, extra in ((viz, ["-p", "viz:=true"]), (plain, ["-p", "viz:=false"]))]
     actors = [actor_cmd(i, N, weights_file=weights, seed=i) for i in range(N)]
     context = Context()
     rclpy.init(context=context)

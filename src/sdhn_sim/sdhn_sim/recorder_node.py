@@ -150,7 +150,9 @@ class RecorderNode(Node):
         super().__init__("recorder", context=context)
         output = self.declare_parameter("output", "").value
         team_ns = self.declare_parameter("team_ns", "/sdhn").value
-        viz = self.declare_parameter("viz", True).value
+        # Off by default: rosbags (and other ROS-only readers) cannot open a file that also holds
+        # protobuf channels. `replay --add-viz` makes a Foxglove copy of a plain recording.
+        viz = self.declare_parameter("viz", False).value
         if not isinstance(viz, bool):
             raise ConfigError(f"viz: {viz!r}; allowed: true (write /viz/* channels) or false")
         if not isinstance(output, str):

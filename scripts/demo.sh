@@ -1,32 +1,48 @@
 #!/usr/bin/env bash
-# Set up (idempotent) and run the main job: a short demo of the whole ROS stack.
-# Until the ROS stack lands this starts the node graph (simulator, one actor process per robot,
-# trainer, recorder) as placeholders, checks each comes up, and stops them all cleanly.
+# Set up (idempotent), then a short demo of the whole ROS stack on maif-10 with 10 robots, one
+# actor process per robot, everything started by the launcher (scripts/launch.sh):
+#   1. train a short while over ROS: simulator + 10 actor processes (sampling) + trainer node,
+#      which pushes new weights versions to the actors as it learns,
+#   2. deploy the trained weights: simulator + 10 actor processes + MCAP recorder, a few episodes,
+#   3. print the MCAP path and a plot of the run (per-episode return and makespan).
+# Knobs: TRAIN_EPISODES (default 4), EPISODES (default 3), TRAIN=inprocess (train with the
+# in-process trainer instead of the trainer node), ROS_DOMAIN_ID.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 "$ROOT/scripts/setup.sh"
 cd "$ROOT"
-ROBOTS="${ROBOTS:-10}"
+TRAIN_EPISODES="${TRAIN_EPISODES:-4}"
+EPISODES="${EPISODES:-3}"
 RUN_DIR="$ROOT/runs/demo-$(date +%Y%m%d-%H%M%S)"
-mkdir -p "$RUN_DIR/logs"
+mkdir -p "$RUN_DIR"
 export ROS_LOG_DIR="$RUN_DIR/ros_logs" ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $$ % 100 + 1 ))}"
-pids=()
-start() { local name=$1; shift; scripts/ros2 run "$@" >"$RUN_DIR/logs/$name.log" 2>&1 & pids+=($!); }
-start sim sdhn_sim sim --ros-args -r __ns:=/sdhn
-start recorder sdhn_sim recorder --ros-args -r __ns:=/sdhn
-start trainer sdhn_train trainer --ros-args -r __ns:=/sdhn
-for i in $(seq 0 $((ROBOTS - 1))); do
-  start "actor_$i" sdhn_policy actor --ros-args -r __ns:=/sdhn/robot_$i -p robot_id:=$i
-done
-for _ in $(seq 100); do
-  ready=$( (grep -l "ready" "$RUN_DIR"/logs/*.log 2>/dev/null || true) | wc -l)
-  [ "$ready" -ge $((ROBOTS + 3)) ] && break
-  sleep 0.2
-done
-echo "[demo] $ready of $((ROBOTS + 3)) processes ready (${ROBOTS} actors, one process each)"
-kill -INT "${pids[@]}"
-status=0
-for pid in "${pids[@]}"; do wait "$pid" || status=$?; done
-echo "[demo] all processes stopped (worst exit code $status); logs in $RUN_DIR/logs"
-exit "$status"
+
+if [ "${TRAIN:-ros}" = inprocess ]; then
+  echo "[demo] 1/3 training SDHN on maif-10 in-process ($((TRAIN_EPISODES * 4096)) team steps)"
+  .venv/bin/python -m sdhn_train.cli --env maif-10 --algo sdhn --seed 1 \
+    --total-steps $((TRAIN_EPISODES * 4096)) --no-progress --set log.root="$RUN_DIR" \
+    --run-name train --set eval.interval=0 --set log.tensorboard=false \
+    >"$RUN_DIR/train.log" 2>&1 || { cat "$RUN_DIR/train.log"; exit 1; }
+  WEIGHTS="$RUN_DIR/train"
+else
+  echo "[demo] 1/3 training SDHN on maif-10 over ROS for $TRAIN_EPISODES episodes:" \
+       "simulator + 10 actor processes + trainer node"
+  scripts/launch.sh configs/launch/train-maif10.yaml --set run_dir="$RUN_DIR/train" \
+    --set episodes="$TRAIN_EPISODES" --set recorder=false --set status_interval=5
+  WEIGHTS="$RUN_DIR/train/trainer"
+fi
+echo "[demo]     trained weights: $WEIGHTS/actor.safetensors"
+
+echo "[demo] 2/3 deploying on maif-10: simulator + 10 actor processes + recorder, $EPISODES episodes"
+scripts/launch.sh configs/launch/deploy-maif10.yaml --set weights="$WEIGHTS" \
+  --set run_dir="$RUN_DIR/deploy" --set episodes="$EPISODES" --set status_interval=5
+
+echo "[demo] 3/3 results"
+PLOT=$(.venv/bin/python -m sdhn_sim.launch_plot "$RUN_DIR/deploy" --train-run "$RUN_DIR/train")
+MCAP="$RUN_DIR/deploy/recording.mcap"
+[ -f "$MCAP" ] || { echo "[demo] no recording was written"; exit 1; }
+echo "[demo] summary:  scripts/ros2 run sdhn_sim replay $MCAP --summary"
+echo "[demo] episodes: $RUN_DIR/deploy/episodes.csv"
+echo "[demo] MCAP:     $MCAP"
+echo "[demo] plot:     $PLOT"

@@ -3,6 +3,7 @@ and an rclpy observer node that records what the graph publishes."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import time
@@ -17,6 +18,8 @@ import numpy as np
 from .processes import ROS2
 
 TEAM_NS = "/sdhn"
+# Each test uses its own team namespace: a node killed by an earlier test lingers in the DDS graph
+# until its lease expires, and must not count as a subscriber or publisher of the next test.
 
 
 def export_weights(root: Path, env: str = "maif-tiny", seed: int = 1) -> Path:
@@ -34,17 +37,17 @@ def export_weights(root: Path, env: str = "maif-tiny", seed: int = 1) -> Path:
     return path
 
 
-def sim_cmd(env: str = "maif-tiny", **params: Any) -> list[str]:
-    args = [*ROS2, "run", "sdhn_sim", "sim", "--ros-args", "-r", f"__ns:={TEAM_NS}",
-            "-p", f"env:={env}"]
+def sim_cmd(env: str = "maif-tiny", ns: str = TEAM_NS, **params: Any) -> list[str]:
+    args = [*ROS2, "run", "sdhn_sim", "sim", "--ros-args", "-r", f"__ns:={ns}",
+            "-p", f"team_ns:={ns}", "-p", f"env:={env}"]
     for k, v in params.items():
         args += ["-p", f"{k}:={_ros(v)}"]
     return args
 
 
-def actor_cmd(i: int, n: int, **params: Any) -> list[str]:
-    args = [*ROS2, "run", "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:={TEAM_NS}/robot_{i}",
-            "-p", f"robot_id:={i}", "-p", f"num_robots:={n}"]
+def actor_cmd(i: int, n: int, ns: str = TEAM_NS, **params: Any) -> list[str]:
+    args = [*ROS2, "run", "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:={ns}/robot_{i}",
+            "-p", f"team_ns:={ns}", "-p", f"robot_id:={i}", "-p", f"num_robots:={n}"]
     for k, v in params.items():
         args += ["-p", f"{k}:={_ros(v)}"]
     return args
@@ -94,7 +97,7 @@ class Seen:
 
 
 @contextmanager
-def observer(num_robots: int) -> Iterator[tuple[Any, Seen, Any]]:
+def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, Any]]:
     """An rclpy node in the test process that subscribes to every obs, action, state and episode
     topic (the simulator counts it with ``extra_subscribers=1``). Yields (node, seen, spin)."""
     import rclpy
@@ -122,12 +125,12 @@ def observer(num_robots: int) -> Iterator[tuple[Any, Seen, Any]]:
     def on_state(_m: Any) -> None:
         seen.state_count += 1
 
-    subs = [node.create_subscription(RobotAction, f"{TEAM_NS}/robot_{i}/action", on_action, STEP)
+    subs = [node.create_subscription(RobotAction, f"{ns}/robot_{i}/action", on_action, STEP)
             for i in range(num_robots)]
-    subs += [node.create_subscription(RobotObservation, f"{TEAM_NS}/robot_{i}/obs", on_obs, STEP)
+    subs += [node.create_subscription(RobotObservation, f"{ns}/robot_{i}/obs", on_obs, STEP)
              for i in range(num_robots)]
-    subs.append(node.create_subscription(TeamState, f"{TEAM_NS}/state", on_state, STEP))
-    subs.append(node.create_subscription(EpisodeSummary, f"{TEAM_NS}/episode",
+    subs.append(node.create_subscription(TeamState, f"{ns}/state", on_state, STEP))
+    subs.append(node.create_subscription(EpisodeSummary, f"{ns}/episode",
                                          seen.episodes.append, STEP))
 
     def spin(seconds: float, until: Any = None) -> bool:
@@ -144,6 +147,15 @@ def observer(num_robots: int) -> Iterator[tuple[Any, Seen, Any]]:
         ex.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def stop_all(procs: list[Any]) -> None:
+    """SIGINT every node (they leave the graph cleanly) and wait; exit codes must be 0."""
+    for p in procs:
+        if p.proc.poll() is None:
+            p.proc.send_signal(signal.SIGINT)
+    codes = [p.proc.wait(timeout=10) for p in procs]
+    assert all(c == 0 for c in codes), (codes, [p.output for p in procs])
 
 
 def action_table(seen: Seen, episode: int, num_robots: int) -> list[list[int]]:

@@ -14,21 +14,17 @@ from pathlib import Path
 import pytest
 from rclpy.node import NodeNameNonExistentError
 
-from .deploy_helpers import TEAM_NS, actor_cmd, export_weights, observer, sim_cmd
+from .deploy_helpers import actor_cmd, observer, sim_cmd, stop_all
 from .processes import node_processes
 
 N = 4
 STEPS = 30
 
 
-@pytest.fixture(scope="module")
-def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return export_weights(tmp_path_factory.mktemp("weights"))
-
-
 def test_each_actor_process_sees_only_its_own_observation(weights: Path) -> None:
-    actors = [actor_cmd(i, N, weights_file=weights, seed=7) for i in range(N)]
-    with observer(N) as (node, seen, spin), node_processes(*actors) as procs:
+    ns = "/sdhn_dec"
+    actors = [actor_cmd(i, N, ns, weights_file=weights, seed=7) for i in range(N)]
+    with observer(N, ns) as (node, seen, spin), node_processes(*actors) as procs:
         for p in procs:
             assert p.wait_for_line("ready", timeout=30), p.output
         pids = {p.proc.pid for p in procs}
@@ -37,28 +33,29 @@ def test_each_actor_process_sees_only_its_own_observation(weights: Path) -> None
         def subscribed(i: int) -> set[str]:
             try:
                 return {t for t, _ in node.get_subscriber_names_and_types_by_node(
-                    "actor", f"{TEAM_NS}/robot_{i}")}
+                    "actor", f"{ns}/robot_{i}")}
             except NodeNameNonExistentError:  # not discovered yet
                 return set()
 
-        expected = {i: {f"{TEAM_NS}/robot_{i}/obs", f"{TEAM_NS}/policy/weights"}
+        expected = {i: {f"{ns}/robot_{i}/obs", f"{ns}/policy/weights"}
                     for i in range(N)}
         assert spin(20, lambda: all(subscribed(i) == expected[i] for i in range(N))), (
             f"actor subscriptions: { {i: sorted(subscribed(i)) for i in range(N)} }")
         for i in range(N):
             published = {t for t, _ in node.get_publisher_names_and_types_by_node(
-                "actor", f"{TEAM_NS}/robot_{i}")}
-            assert f"{TEAM_NS}/robot_{i}/action" in published
+                "actor", f"{ns}/robot_{i}")}
+            assert f"{ns}/robot_{i}/action" in published
             others = {t for t in published if "/robot_" in t and f"/robot_{i}/" not in t}
             assert not others, f"actor {i} publishes to other robots' topics: {others}"
         # Every action publisher is matched with the observer before the simulator starts.
-        assert spin(20, lambda: all(node.count_publishers(f"{TEAM_NS}/robot_{i}/action") >= 1
+        assert spin(20, lambda: all(node.count_publishers(f"{ns}/robot_{i}/action") >= 1
                                     for i in range(N)))
-        with node_processes(sim_cmd(episodes=1, max_steps=STEPS, seed=3,
+        with node_processes(sim_cmd(ns=ns, episodes=1, max_steps=STEPS, seed=3,
                                     extra_subscribers=1)) as (sim,):
             assert spin(40, lambda: len(seen.episodes) == 1), f"no episode:\n{sim.output}"
             sim.proc.wait(timeout=10)
         assert sim.proc.returncode == 0, sim.output
+        stop_all(procs)
         ep = seen.episodes[0]
         assert ep.missed_actions == 0, sim.output
         version = json.loads(weights.with_suffix(".json").read_text())["version"]
@@ -112,3 +109,26 @@ def test_actor_process_never_imports_torch(weights: Path) -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
                           check=False)
     assert "TORCH False" in done.stdout, done.stdout + done.stderr
+
+
+def test_actor_takes_latched_weights_and_drops_bad_ones(weights: Path) -> None:
+    from sdhn_msgs.msg import PolicyWeights
+    from sdhn_policy.weights import load_actor_file
+    from sdhn_sim.qos import LATCHED
+
+    blob = load_actor_file(weights)
+    ns = "/sdhn_latched"
+    with observer(N, ns) as (node, _seen, spin), node_processes(actor_cmd(1, N, ns)) as (actor,):
+        assert actor.wait_for_line("ready", timeout=30), actor.output
+        pub = node.create_publisher(PolicyWeights, f"{ns}/policy/weights", LATCHED)
+        assert spin(20, lambda: pub.get_subscription_count() >= 1)
+        assert node.count_publishers(f"{ns}/robot_1/action") == 0, "no weights, no topics"
+        bad = PolicyWeights(version=blob.version, format=blob.format, payload=blob.payload,
+                            sha256="0" * 64)
+        pub.publish(bad)
+        assert actor.wait_for_line("dropped (bad_sha256)", timeout=10), actor.output
+        pub.publish(PolicyWeights(version=blob.version, format=blob.format,
+                                  payload=blob.payload, sha256=blob.sha256))
+        assert actor.wait_for_line(f"weights version {blob.version} accepted", timeout=10)
+        assert spin(10, lambda: node.count_publishers(f"{ns}/robot_1/action") == 1)
+        assert actor.stop() == 0, actor.output

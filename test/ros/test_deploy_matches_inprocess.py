@@ -6,37 +6,31 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 from .deploy_helpers import (
-    TEAM_NS,
     action_table,
     actor_cmd,
-    export_weights,
     inprocess_greedy_actions,
     observer,
     sim_cmd,
+    stop_all,
 )
 from .processes import node_processes
 
 N, SEED, EPISODES, MAX_STEPS = 4, 5, 2, 40
 
 
-@pytest.fixture(scope="module")
-def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return export_weights(tmp_path_factory.mktemp("weights"), seed=2)
-
-
 def test_ros_deploy_actions_equal_inprocess_greedy_rollout(weights: Path) -> None:
     expected = inprocess_greedy_actions(weights, "maif-tiny", SEED, EPISODES, MAX_STEPS)
-    actors = [actor_cmd(i, N, weights_file=weights, greedy=True) for i in range(N)]
-    with observer(N) as (node, seen, spin), node_processes(*actors) as procs:
-        assert spin(30, lambda: all(node.count_publishers(f"{TEAM_NS}/robot_{i}/action") >= 1
+    ns = "/sdhn_equal"
+    actors = [actor_cmd(i, N, ns, weights_file=weights, greedy=True) for i in range(N)]
+    with observer(N, ns) as (node, seen, spin), node_processes(*actors) as procs:
+        assert spin(30, lambda: all(node.count_publishers(f"{ns}/robot_{i}/action") >= 1
                                     for i in range(N))), [p.output for p in procs]
-        with node_processes(sim_cmd(seed=SEED, episodes=EPISODES, max_steps=MAX_STEPS,
+        with node_processes(sim_cmd(ns=ns, seed=SEED, episodes=EPISODES, max_steps=MAX_STEPS,
                                     extra_subscribers=1)) as (sim,):
             assert spin(60, lambda: len(seen.episodes) == EPISODES), sim.output
             sim.proc.wait(timeout=10)
+        stop_all(procs)
     assert all(ep.missed_actions == 0 for ep in seen.episodes), sim.output
     for e in range(EPISODES):
         got = action_table(seen, e, N)

@@ -14,15 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from .deploy_helpers import export_weights
 from .processes import NodeProcess, node_processes
 
 LAUNCH = [sys.executable, "-m", "sdhn_sim.launch", "configs/launch/deploy-tiny.yaml"]
-
-
-@pytest.fixture(scope="module")
-def weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return export_weights(tmp_path_factory.mktemp("weights"), seed=3)
 
 
 def launch(weights: Path, run_dir: Path, *sets: str) -> list[str]:
@@ -54,7 +48,8 @@ def wait_after(proc: NodeProcess, first: str, then: str, timeout: float) -> bool
 
 
 def test_runs_its_episodes_and_ends_cleanly(weights: Path, tmp_path: Path) -> None:
-    with node_processes(launch(weights, tmp_path, "episodes=2")) as (launcher,):
+    with node_processes(launch(weights, tmp_path, "episodes=2",
+                               "team_ns=/sdhn_launch")) as (launcher,):
         launcher.proc.wait(timeout=60)
     assert launcher.proc.returncode == 0, launcher.output
     assert "every child stopped cleanly" in launcher.output
@@ -68,7 +63,8 @@ def test_runs_its_episodes_and_ends_cleanly(weights: Path, tmp_path: Path) -> No
 @pytest.mark.parametrize("policy", ["on-failure", "never"])
 def test_killed_child_is_reported_and_sigterm_stops_all(weights: Path, tmp_path: Path,
                                                         policy: str) -> None:
-    with node_processes(launch(weights, tmp_path, "episodes=0",
+    with node_processes(launch(weights, tmp_path, "episodes=0", "step_deadline=0.2",
+                               f"team_ns=/sdhn_launch_{policy.replace('-', '_')}",
                                f"restart.policy={policy}")) as (launcher,):
         assert launcher.wait_for_line("episode 0:", timeout=40), launcher.output
         os.kill(pid_of(launcher, "actor_2"), signal.SIGKILL)
@@ -78,6 +74,9 @@ def test_killed_child_is_reported_and_sigterm_stops_all(weights: Path, tmp_path:
             assert launcher.wait_for_line("restarted actor_2 (1/3)", timeout=10), launcher.output
             # The restarted actor answers again: a later episode has no missed actions.
             assert wait_after(launcher, "restarted actor_2", "missed 0,", timeout=30), (
+                launcher.output)
+        else:  # the dead robot's actions miss the deadline: 'stay', counted in the summary
+            assert wait_after(launcher, "killed by SIGKILL", "missed 40,", timeout=30), (
                 launcher.output)
         code = launcher.stop(signal.SIGTERM, timeout=20)
     out = launcher.output

@@ -194,3 +194,28 @@ def test_recorder_never_overwrites_an_existing_file(tmp_path: Path) -> None:
     shutil.copy(__file__, first)
     assert fresh_path(first) == tmp_path / "a-1.mcap"
     assert sys.executable
+
+
+def test_rate_republishes_every_message_on_its_topic(recorded: tuple[Path, str],
+                                                     tmp_path: Path) -> None:
+    """Replay at 2x into a second recorder: the same messages (bytes) arrive on the same topics."""
+    path, ns = recorded
+    again = tmp_path / "again.mcap"
+    command = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={again}",
+               "-p", f"team_ns:={ns}"]
+    with node_processes(command) as (recorder,):
+        assert recorder.wait_for_line("ready", timeout=20), recorder.output
+        done = subprocess.run([*REPLAY, str(path), "--rate", "2", "--wait", "10"],
+                              capture_output=True, text=True, timeout=60, check=False)
+        assert done.returncode == 0, done.stderr
+        assert "republished" in done.stdout
+        time.sleep(0.5)
+        assert recorder.stop(timeout=5.0) == 0, recorder.output
+    original = read_recording(path)
+    replayed = read_recording(again)
+    step_topics = {t for t in original.topics() if "/robot_" in t or t.endswith(("/state",
+                                                                                 "/episode"))}
+    for topic in step_topics:
+        want = [m.data for m in original.messages if m.topic == topic]
+        got = [m.data for m in replayed.messages if m.topic == topic]
+        assert got == want, f"{topic}: {len(got)} of {len(want)} messages replayed"

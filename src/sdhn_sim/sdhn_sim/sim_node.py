@@ -150,9 +150,11 @@ class SimNode(Node):
         if result is not None:
             self.publish_summary(result)
             if self.sim.finished:
-                self.get_logger().info(f"done: {self.sim.episodes_done} episodes, "
-                                       f"{self.steps_total} steps, {self.sim.total_missed} missed "
-                                       f"actions, drops {dict(self.drops)}")
+                elapsed = time.monotonic() - self.t_start
+                self.get_logger().info(
+                    f"done: {self.sim.episodes_done} episodes, {self.steps_total} steps in "
+                    f"{elapsed:.2f}s ({self.steps_total / elapsed:.1f} steps/s), "
+                    f"{self.sim.total_missed} missed actions, drops {dict(self.drops)}")
                 self.finish(0)
                 return
             self.publish(self.sim.reset())

@@ -20,6 +20,7 @@ import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -29,7 +30,7 @@ from sdhn_policy.weights import ActorWeights, save_actor_file
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms import EnvInfo, build_learner
 from sdhn_train.config import Config
-from sdhn_train.critics import SDHNCritic
+from sdhn_train.critics import Critic, SDHNCritic
 from sdhn_train.hypergraph import binary_concrete
 from sdhn_train.skewness import hyperedge_degrees, sample_skewness, squashed_skewness
 from sdhn_train.trainer import seed_everything
@@ -142,13 +143,14 @@ class RemoteLearner:
         n = self.info.num_robots
         p = a.prefix_obs.shape[0]
         actor_h = torch.zeros(n, lr.actor.spec.gru_hidden)
-        critic_h = lr.target_critic.initial_state(1)
+        target = cast(Critic, lr.target_critic)  # a deep copy of the critic (make_target)
+        critic_h = target.initial_state(1)
         if p:
             obs = torch.from_numpy(a.prefix_obs)  # [P, N, D]
             x = lr.actor.with_robot_id(obs)  # [P, N, in]
             for t in range(p):
                 _, actor_h = lr.actor.step(x[t], actor_h)
-            out = lr.target_critic.forward_sequence(
+            out = target.forward_sequence(
                 obs[:, None], torch.from_numpy(a.prefix_state)[:, None], critic_h,
                 torch.zeros(p, 1, dtype=torch.bool))
             critic_h = out.hiddens[-1]

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -342,7 +343,7 @@ class TransitionAssembler:
                 seg_obs, seg_state = [], []
         self._segment_obs, self._segment_state = seg_obs, seg_state
 
-        def stack(name: str, dtype: type) -> npt.NDArray[np.generic]:
+        def stack(name: str, dtype: type) -> Any:
             return np.stack([np.asarray(getattr(tr, name), dtype) for tr in items])[:, None]
 
         rollout = Rollout(

@@ -1,0 +1,261 @@
+#!/usr/bin/env python
+"""Benchmark of the ROS deployment stack (prints figures; not a test). Run with the venv's python:
+
+    .venv/bin/python scripts/bench_ros.py [--robots 4 10 20] [--steps 300] [--record]
+
+1. Lock-step team-steps/s in deploy mode (``sdhn_sim sim`` + N ``sdhn_policy actor`` processes,
+   MAIF with N robots, greedy NumPy policy) next to a minimal rclpy ping-pong ceiling measured in
+   the same run: a bare lock-step master publishing the same RobotObservation messages to N bare
+   echo processes, one per robot, which answer with a RobotAction at once (no env, no policy).
+2. Actor process RSS and time-to-ready (Popen -> "ready" log line) with a weights file.
+3. Recording overhead: steps/s with vs without the recorder (``--record``; needs a real recorder).
+
+Weights are random (NumPy ``encode_actor``), so no training is needed; the cost of a step does not
+depend on how good the policy is. Every process runs on localhost in a private ROS domain.
+"""
+
+from __future__ import annotations
+
+import argparse
+import array
+import os
+import re
+import select
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ROS2 = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run"]
+ENVS = {4: "maif-tiny", 10: "maif-10", 20: "maif-20"}
+DONE_RE = re.compile(r"done: \d+ episodes, (\d+) steps in ([\d.]+)s")
+
+
+def make_weights(out: Path) -> Path:
+    from sdhn_policy.weights import ActorSpec, encode_actor, save_actor_file
+
+    spec = ActorSpec(obs_size=57, num_actions=5)
+    rng = np.random.default_rng(0)
+    tensors = {k: (rng.standard_normal(s) * 0.2).astype(np.float32)
+               for k, s in spec.tensor_shapes().items()}
+    path = out / "actor.safetensors"
+    save_actor_file(path, encode_actor(spec, tensors, version=1))
+    return path
+
+
+def wait_line(proc: subprocess.Popen[bytes], needle: str, timeout: float) -> tuple[bool, list[str]]:
+    """Read the child's output until a line contains ``needle``; (found, lines read)."""
+    seen: list[str] = []
+    end = time.monotonic() + timeout
+    assert proc.stdout is not None
+    fd = proc.stdout.fileno()
+    buf = b""
+    while time.monotonic() < end:
+        ready, _, _ = select.select([fd], [], [], 0.05)
+        if not ready:
+            continue
+        chunk = os.read(fd, 65536)
+        if not chunk:
+            return False, seen
+        buf += chunk
+        *lines, rest = buf.split(b"\n")
+        buf = rest
+        text = [line.decode(errors="replace") for line in lines]
+        seen += text
+        if any(needle in line for line in text):
+            return True, seen
+    return False, seen
+
+
+def spawn(args: list[str]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+
+
+def stop(procs: list[subprocess.Popen[bytes]]) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(2)
+    for p in procs:
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+# --- 1a. the ceiling: bare lock-step master + N bare echo processes ------------------------------
+
+
+def echo_main(robot: int, ns: str) -> int:
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+
+    from sdhn_msgs.msg import RobotAction, RobotObservation
+    from sdhn_sim.qos import STEP
+
+    rclpy.init()
+    node = rclpy.create_node("echo", namespace=f"{ns}/robot_{robot}")
+    pub = node.create_publisher(RobotAction, f"{ns}/robot_{robot}/action", STEP)
+
+    def on_obs(m: RobotObservation) -> None:
+        a = RobotAction()
+        a.episode, a.step, a.robot_id = m.episode, m.step, m.robot_id
+        pub.publish(a)
+
+    node.create_subscription(RobotObservation, f"{ns}/robot_{robot}/obs", on_obs, STEP)
+    ex = EventsExecutor()
+    ex.add_node(node)
+    print("ready", flush=True)
+    try:
+        while rclpy.ok():
+            ex.spin_once(timeout_sec=0.05)
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+def ceiling(n: int, steps: int) -> float:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.experimental import EventsExecutor
+
+    from sdhn_msgs.msg import RobotAction, RobotObservation
+    from sdhn_sim.qos import STEP
+
+    ns = "/pingpong"
+    echoes = [spawn([sys.executable, __file__, "--echo", str(i), "--ns", ns]) for i in range(n)]
+    ctx = Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("master", context=ctx)
+    pubs = [node.create_publisher(RobotObservation, f"{ns}/robot_{i}/obs", STEP) for i in range(n)]
+    got = [0]
+    step = [0]
+    obs = array.array("f", np.zeros(57, np.float32).tobytes())
+
+    def publish() -> None:
+        for i, p in enumerate(pubs):
+            m = RobotObservation()
+            m.step, m.robot_id, m.num_robots, m.obs = step[0], i, n, obs
+            p.publish(m)
+
+    def on_action(_m: RobotAction) -> None:
+        got[0] += 1
+        if got[0] == n:
+            got[0] = 0
+            step[0] += 1
+            publish()
+
+    subs = [node.create_subscription(RobotAction, f"{ns}/robot_{i}/action", on_action, STEP)
+            for i in range(n)]
+    ex = EventsExecutor(context=ctx)
+    ex.add_node(node)
+    try:
+        end = time.monotonic() + 60
+        while time.monotonic() < end and not (
+                all(p.get_subscription_count() >= 1 for p in pubs)
+                and all(s.get_publisher_count() >= 1 for s in subs)):
+            ex.spin_once(timeout_sec=0.02)
+        warm = min(50, steps // 5)
+        publish()
+        while step[0] < warm:
+            ex.spin_once(timeout_sec=0.05)
+        t0, s0 = time.perf_counter(), step[0]
+        while step[0] < s0 + steps:
+            ex.spin_once(timeout_sec=0.05)
+        rate = (step[0] - s0) / (time.perf_counter() - t0)
+    finally:
+        ex.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        stop(echoes)
+    return rate
+
+
+# --- 1b. the real stack ---------------------------------------------------------------------
+
+
+def deploy_rate(n: int, steps: int, weights: Path, record: bool, tmp: Path) -> float:
+    env = ENVS[n]
+    procs = []
+    if record:
+        procs.append(spawn([*ROS2, "sdhn_sim", "recorder", "--ros-args", "-r", "__ns:=/sdhn",
+                            "-p", f"output:={tmp / f'rec-{n}.mcap'}"]))
+    actors = [spawn([*ROS2, "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:=/sdhn/robot_{i}",
+                     "-p", f"robot_id:={i}", "-p", f"num_robots:={n}", "-p",
+                     f"weights_file:={weights}", "-p", "greedy:=true"]) for i in range(n)]
+    sim = spawn([*ROS2, "sdhn_sim", "sim", "--ros-args", "-r", "__ns:=/sdhn", "-p", f"env:={env}",
+                 "-p", "episodes:=1", "-p", f"max_steps:={steps}", "-p",
+                 f"extra_subscribers:={int(record)}"])
+    try:
+        ok, lines = wait_line(sim, "missed actions, drops", timeout=180)
+        m = next((DONE_RE.search(line) for line in lines if DONE_RE.search(line)), None)
+        if not ok or m is None:
+            raise RuntimeError("sim did not finish:\n" + "\n".join(lines[-20:]))
+        return int(m.group(1)) / float(m.group(2))
+    finally:
+        stop([sim, *actors, *procs])
+
+
+# --- 2. actor process footprint --------------------------------------------------------------
+
+
+def actor_footprint(weights: Path, repeats: int) -> tuple[list[float], list[float]]:
+    readies, rss = [], []
+    for k in range(repeats):
+        t0 = time.perf_counter()
+        p = spawn([*ROS2, "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:=/fp/robot_{k}",
+                   "-p", f"robot_id:={k}", "-p", "num_robots:=10", "-p",
+                   f"weights_file:={weights}", "-p", "team_ns:=/fp"])
+        ok, lines = wait_line(p, "ready", timeout=30)
+        readies.append(time.perf_counter() - t0)
+        time.sleep(0.3)
+        status = Path(f"/proc/{p.pid}/status").read_text()
+        rss.append(int(re.search(r"VmRSS:\s+(\d+)", status).group(1)) / 1024)  # type: ignore[union-attr]
+        stop([p])
+        if not ok:
+            raise RuntimeError("\n".join(lines))
+    return readies, rss
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--robots", type=int, nargs="+", default=[4, 10, 20], choices=sorted(ENVS))
+    ap.add_argument("--steps", type=int, default=300, help="team steps per measurement")
+    ap.add_argument("--record", action="store_true", help="also measure recording overhead")
+    ap.add_argument("--echo", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--ns", default="/pingpong", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.echo is not None:
+        return echo_main(args.echo, args.ns)
+    os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 90 + 10))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    tmp = Path(tempfile.mkdtemp(prefix="bench-ros-"))
+    os.environ.setdefault("ROS_LOG_DIR", str(tmp / "ros_logs"))
+    weights = make_weights(tmp)
+    print(f"# bench_ros: {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}, "
+          f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, {args.steps} steps per figure")
+    readies, rss = actor_footprint(weights, 3)
+    print(f"actor process: ready {np.median(readies):.2f}s (median of {len(readies)}; "
+          f"{', '.join(f'{r:.2f}' for r in readies)}), RSS {np.median(rss):.0f} MB "
+          f"(goal: < 0.5 s, < 100 MB)")
+    print(f"{'N':>3} {'env':>10} {'ceiling/s':>10} {'deploy/s':>9} {'ratio':>6}"
+          + (f" {'recorded/s':>10} {'overhead':>8}" if args.record else ""))
+    for n in args.robots:
+        ceil = ceiling(n, args.steps)
+        real = deploy_rate(n, args.steps, weights, False, tmp)
+        line = f"{n:>3} {ENVS[n]:>10} {ceil:>10.0f} {real:>9.0f} {real / ceil:>6.0%}"
+        if args.record:
+            rec = deploy_rate(n, args.steps, weights, True, tmp)
+            line += f" {rec:>10.0f} {1 - rec / real:>8.1%}"
+        print(line, flush=True)
+    print("goals: deploy >= 80% of ceiling; recording overhead <= 5%")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

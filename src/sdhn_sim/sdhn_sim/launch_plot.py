@@ -1,0 +1,83 @@
+"""Plot a launched run: per-episode return and makespan from ``<run_dir>/episodes.csv`` (written by
+the launcher), next to a training curve when given: the per-episode returns of a launcher run in
+train mode (its ``episodes.csv``), or the ``metrics.csv`` of an in-process training run.
+
+    python -m sdhn_sim.launch_plot RUN_DIR [--train-run TRAIN_RUN_DIR] [--out PNG]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from pathlib import Path
+
+
+def read_episodes(run_dir: Path) -> list[dict[str, str]]:
+    path = run_dir / "episodes.csv"
+    return list(csv.DictReader(path.read_text().splitlines())) if path.exists() else []
+
+
+def read_train_curve(train_run: Path,
+                     tag: str = "charts/episodic_return") -> list[tuple[int, float]]:
+    """(team env-steps, episode return) points of a training run."""
+    episodes = read_episodes(train_run)
+    if episodes:
+        steps = 0
+        points = []
+        for e in episodes:
+            steps += int(e["length"])
+            points.append((steps, float(e["return"])))
+        return points
+    path = train_run / "metrics.csv"
+    if not path.exists():
+        return []
+    rows = csv.DictReader(path.read_text().splitlines())
+    return [(int(r["step"]), float(r["value"])) for r in rows if r["tag"] == tag]
+
+
+def plot_run(run_dir: Path, train_run: Path | None = None, out: Path | None = None) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    episodes = read_episodes(run_dir)
+    curve = read_train_curve(train_run) if train_run is not None else []
+    panels = 3 if curve else 2
+    fig, axes = plt.subplots(1, panels, figsize=(4.2 * panels, 3.4))
+    ks = [int(e["episode"]) for e in episodes]
+    axes[0].bar(ks, [float(e["return"]) for e in episodes], color="tab:blue")
+    axes[0].set(title="deployed: episode return", xlabel="episode", ylabel="team return")
+    lengths = [int(e["length"]) for e in episodes]
+    done = [e["makespan"] != "NC" for e in episodes]
+    colors = ["tab:green" if d else "tab:gray" for d in done]
+    axes[1].bar(ks, lengths, color=colors)
+    for k, length, d in zip(ks, lengths, done, strict=True):
+        if not d:
+            axes[1].text(k, length, "NC", ha="center", va="bottom", fontsize=8)
+    axes[1].set(title="deployed: makespan (grey = NC, length shown)", xlabel="episode",
+                ylabel="steps")
+    if curve:
+        axes[2].plot([s for s, _ in curve], [v for _, v in curve], marker="o")
+        axes[2].set(title="training: episode return", xlabel="team env-steps",
+                    ylabel="team return")
+    fig.tight_layout()
+    out = out or run_dir / "episodes.png"
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="launch_plot", description=__doc__)
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("--train-run", type=Path)
+    p.add_argument("--out", type=Path)
+    args = p.parse_args(argv)
+    print(plot_run(args.run_dir, args.train_run, args.out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

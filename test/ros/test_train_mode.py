@@ -1,0 +1,134 @@
+"""Train mode with real processes: sim + 4 actor processes + trainer + recorder on maif-tiny. The
+trainer publishes version 1 at start and new versions after updates; the actors switch (their
+actions carry the new versions); the recorder's MCAP holds every step of every finished episode,
+and replay's summary recomputed from the recorded state equals the simulator's."""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from sdhn_sim.recording import read_recording, summaries_from_messages, summaries_from_states
+
+from .deploy_helpers import TEAM_NS, Seen, actor_cmd, observer, sim_cmd
+from .processes import ROS2, NodeProcess, node_processes
+
+N = 4
+MAX_STEPS = 16
+ROLLOUT = 16
+
+
+@dataclass
+class TrainRun:
+    seen: Seen
+    trainer: NodeProcess
+    recording: Path
+    run_dir: Path
+    seconds: float
+
+
+def trainer_cmd(run_dir: Path, config: Path, resume: bool = False) -> list[str]:
+    return [*ROS2, "run", "sdhn_train", "trainer", "--ros-args", "-p", "env:=maif-tiny",
+            "-p", f"run_dir:={run_dir}", "-p", f"rollout_steps:={ROLLOUT}",
+            "-p", f"config:={config}", "-p", f"resume:={'true' if resume else 'false'}"]
+
+
+@pytest.fixture(scope="module")
+def train_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TrainRun]:
+    tmp = tmp_path_factory.mktemp("train")
+    config = tmp / "trainer.yaml"
+    config.write_text("ppo:\n  epochs: 2\nlog:\n  tensorboard: false\n")
+    run_dir, recording = tmp / "run", tmp / "run.mcap"
+    trainer = trainer_cmd(run_dir, config)
+    recorder = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={recording}"]
+    actors = [actor_cmd(i, N, seed=i) for i in range(N)]  # no weights_file: wait for the trainer
+    with observer(N) as (_node, seen, spin), \
+            node_processes(trainer, recorder, *actors) as procs:
+        for p in procs:
+            assert p.wait_for_line("ready", timeout=40), p.output
+        t0 = time.monotonic()
+        with node_processes(sim_cmd(max_steps=MAX_STEPS, seed=5, extra_subscribers=3,
+                                    step_deadline=2.0)) as (sim,):
+
+            def switched() -> bool:
+                return any(v >= 3 for _a, v in seen.actions.values())
+
+            ok = spin(45, switched)
+            seconds = time.monotonic() - t0
+            sim.stop()
+            assert ok, (f"actors never used version >= 3; versions seen "
+                        f"{sorted({v for _a, v in seen.actions.values()})}\n--- trainer\n"
+                        f"{procs[0].output}\n--- sim\n{sim.output[-3000:]}")
+        for p in procs:
+            assert p.stop(timeout=8) == 0, p.output
+        yield TrainRun(seen, procs[0], recording, run_dir, seconds)
+
+
+def test_trainer_publishes_new_versions_and_actors_switch(train_run: TrainRun) -> None:
+    versions = {v for _a, v in train_run.seen.actions.values()}
+    assert min(versions) == 1, "actors begin with the trainer's version 1"
+    assert max(versions) >= 3, f"two new versions reached the actors: {sorted(versions)}"
+    out = train_run.trainer.output
+    updates = [line for line in out.splitlines() if "update: version=" in line]
+    assert len(updates) >= 2, out
+    sizes = {int(m) for m in re.findall(r"weights_bytes=(\d+)", out)}
+    update_s = [float(m) for m in re.findall(r"update_s=([0-9.]+)", out)]
+    publish_ms = [float(m) for m in re.findall(r"publish_ms=([0-9.]+)", out)]
+    print(f"\n{len(updates)} updates in {train_run.seconds:.1f} s; update_s "
+          f"{min(update_s):.3f}-{max(update_s):.3f}; weights {sizes} bytes, publish "
+          f"{min(publish_ms):.1f}-{max(publish_ms):.1f} ms\n" + "\n".join(updates[:3]) + "\n"
+          + "\n".join(line for line in out.splitlines() if "status:" in line)[-600:])
+    # checkpoints: the newest one is the newest published version
+    last = max(int(m) for m in re.findall(r"update: version=(\d+)", out))
+    assert (train_run.run_dir / "checkpoints" / f"version_{last:06d}.json").is_file()
+    assert "Traceback" not in out
+
+
+def test_resume_continues_from_the_last_version(train_run: TrainRun, tmp_path: Path) -> None:
+    out = train_run.trainer.output
+    last = max(int(m) for m in re.findall(r"update: version=(\d+)", out))
+    config = tmp_path / "trainer.yaml"
+    config.write_text("log:\n  tensorboard: false\n")
+    with node_processes(trainer_cmd(train_run.run_dir, config, resume=True)) as (trainer,):
+        assert trainer.wait_for_line("ready", timeout=40), trainer.output
+        assert trainer.stop(timeout=8) == 0, trainer.output
+    assert f"version={last} (resumed from version_{last:06d})" in trainer.output, trainer.output
+
+
+def test_recording_of_the_train_run_holds_every_step(train_run: TrainRun) -> None:
+    rec = read_recording(train_run.recording)
+    assert rec.truncated is None
+    live = summaries_from_messages(rec)
+    assert live, "no finished episode was recorded"
+    recomputed = summaries_from_states(rec)
+    obs: dict[tuple[int, int], int] = {}
+    for raw in rec.messages:
+        if raw.topic.endswith("/obs"):
+            from sdhn_sim.recording import decode
+
+            m = decode(raw)
+            obs[(m.episode, m.step)] = obs.get((m.episode, m.step), 0) + 1
+    acts = {(e, s) for (e, s, _r) in train_run.seen.actions}
+    actions: dict[tuple[int, int], int] = {}
+    for _, a in rec.decoded("/action"):
+        actions[(a.episode, a.step)] = actions.get((a.episode, a.step), 0) + 1
+    states = {(s.episode, s.step) for _, s in rec.decoded("/state")}
+    for k, row in live.items():
+        for t in range(row.length + 1):
+            assert obs.get((k, t)) == N, f"episode {k} step {t}: {obs.get((k, t))} obs recorded"
+            assert (k, t) in states, f"episode {k} step {t}: no state recorded"
+        for t in range(row.length):
+            assert actions.get((k, t)) == N, f"episode {k} step {t}: {actions.get((k, t))} actions"
+            assert (k, t) in acts
+        b = recomputed[k]
+        assert (row.length, row.completed, row.makespan, row.missed_actions, row.policy_version
+                ) == (b.length, b.completed, b.makespan, b.missed_actions, b.policy_version)
+        assert b.episode_return == pytest.approx(row.episode_return, rel=1e-5, abs=1e-4)
+    weights = [m for m in rec.messages if m.topic == f"{TEAM_NS}/policy/weights"]
+    assert len(weights) >= 3, "versions 1 (latched) and at least two updates"
+    assert any(m.topic == f"{TEAM_NS}/hypergraph" for m in rec.messages)

@@ -28,7 +28,8 @@ from .graph import Peer, wait_until
 from .hostile import action_msg, hostile_weights, obs_msg, weights_msg
 
 pytestmark = pytest.mark.ros
-NS = "/sdhn"
+NS = "/f_hostile_actor"  # one namespace per test (see test_kills.test_ns)
+SIM_NS = "/f_hostile_sim"
 N = 4  # maif-tiny
 
 
@@ -82,7 +83,7 @@ def test_actor_drops_each_malformed_obs_and_weights_kind(tmp_path: Path) -> None
             return None
         return next(a for a in got if (a.episode, a.step) == (episode, step))
 
-    cmd = actor_cmd(1, N, weights_file=str(weights_file), greedy=True)
+    cmd = actor_cmd(1, N, ns=NS, weights_file=str(weights_file), greedy=True)
     try:
         with node_processes(cmd) as (actor,):
             assert actor.wait_for_line("ready", timeout=30), actor.output
@@ -161,7 +162,7 @@ def test_sim_drops_each_hostile_action_kind(tmp_path: Path) -> None:
     hostile_steps = {(0, 3), (0, 6)}
     peer = Peer("fake_robots")
     states: list[Any] = []
-    pubs = {k: peer.node.create_publisher(RobotAction, f"{NS}/robot_{k}/action", STEP)
+    pubs = {k: peer.node.create_publisher(RobotAction, f"{SIM_NS}/robot_{k}/action", STEP)
             for k in (2, 3)}
 
     def on_obs(k: int, m: RobotObservation) -> None:
@@ -178,12 +179,14 @@ def test_sim_drops_each_hostile_action_kind(tmp_path: Path) -> None:
                 pubs[3].publish(msg)
 
     for k in (2, 3):
-        peer.node.create_subscription(RobotObservation, f"{NS}/robot_{k}/obs",
+        peer.node.create_subscription(RobotObservation, f"{SIM_NS}/robot_{k}/obs",
                                       lambda m, k=k: on_obs(k, m), STEP)
-    peer.node.create_subscription(TeamState, f"{NS}/state", states.append, STEP)
+    peer.node.create_subscription(TeamState, f"{SIM_NS}/state", states.append, STEP)
     peer.start()
-    cmds = [sim_cmd(episodes=0, step_deadline=deadline, max_steps=40, start_timeout=30.0),
-            *(actor_cmd(i, N, weights_file=str(weights_file), greedy=True) for i in (0, 1))]
+    cmds = [sim_cmd(ns=SIM_NS, episodes=0, step_deadline=deadline, max_steps=40,
+                    start_timeout=30.0),
+            *(actor_cmd(i, N, ns=SIM_NS, weights_file=str(weights_file), greedy=True)
+              for i in (0, 1))]
     try:
         with node_processes(*cmds) as (sim, *actors):
             assert wait_until(lambda: any(int(s.step) >= 12 for s in states), 45), (

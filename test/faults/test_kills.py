@@ -8,6 +8,7 @@ from __future__ import annotations
 import copy
 import itertools
 import os
+import re
 import signal
 import subprocess
 import time
@@ -37,17 +38,24 @@ from .graph import (
 )
 
 pytestmark = pytest.mark.ros
-NS = "/sdhn"
 N = 4
 DEADLINE = 0.5
 
 
+def unique_ns(request: pytest.FixtureRequest) -> str:
+    """A team namespace of this test alone: a process killed by an earlier test stays in the DDS
+    graph until its lease expires and must not count as a peer here."""
+    return "/f_" + re.sub(r"\W", "_", request.node.name)[:40]
+
+
 @pytest.fixture()
-def graph(tmp_path: Path) -> Iterator[tuple[NodeProcess, Watcher, Path]]:
+def graph(tmp_path: Path, request: pytest.FixtureRequest
+          ) -> Iterator[tuple[NodeProcess, Watcher, Path]]:
     """The running train graph, the watcher, and the run dir; stopped cleanly afterwards."""
-    watcher = Watcher(NS, N)
+    ns = unique_ns(request)
+    watcher = Watcher(ns, N)
     try:
-        with node_processes(launch_cmd(tmp_path, *TRAIN_TINY)) as (launcher,):
+        with node_processes(launch_cmd(tmp_path, *TRAIN_TINY, f"team_ns={ns}")) as (launcher,):
             yield launcher, watcher, tmp_path
             launcher.stop(signal.SIGTERM, timeout=25)
     finally:
@@ -164,35 +172,48 @@ def test_trainer_killed_actors_keep_acting_and_restart_resumes(graph) -> None:
 
 
 def test_sim_killed_actors_and_trainer_idle_then_continue(graph) -> None:
-    launcher, watcher, _run = graph
+    launcher, watcher, run = graph
     seen = watcher.seen
     started(launcher, watcher)
     assert wait_until(lambda: len(seen.episodes) >= 2, 40), f"episodes {len(seen.episodes)}"
     survivors = {k: v for k, v in pids(launcher).items() if k != "sim"}
+    episode_at_kill = max(int(s.msg.episode) for s in seen.states)
     _, t_kill = kill(launcher, "sim")
     assert launcher.wait_for_line("restarted sim", timeout=10), launcher.output
-    t_restart = time.time()
-    # Nobody acts while no simulator runs (the last in-flight answers land within ~0.2 s).
-    idle = [r for i in range(N) for r in seen.actions[i] if t_kill + 0.3 < r.t < t_restart]
-    assert wait_until(lambda: any(s.t > t_kill and s.msg.episode == 0 and s.msg.step == 0
-                                  for s in seen.states), 40), (
-        f"restarted sim never started episode 0:\n{launcher.output}")
-    t_new = next(s.t for s in seen.states if s.t > t_kill and s.msg.step == 0)
+    # The new simulator's own log says when it had matched everyone and began episode 0.
+    began: list = []
+
+    def restarted() -> bool:
+        began[:] = [ln for ln in log_lines(run / "logs" / "sim.log")
+                    if ln.t > t_kill and "starting episode 0" in ln.text]
+        return bool(began)
+    assert wait_until(restarted, 40), f"restarted sim never started:\n{launcher.output}"
+    t_new = began[0].t
+    # Nobody acts while no simulator runs (answers in flight at the kill land within ~0.3 s).
+    idle = [r for i in range(N) for r in seen.actions[i] if t_kill + 0.3 < stamp(r.msg) < t_new]
     v_before = seen.latest_version()
-    assert wait_until(lambda: any(r.t > t_kill for r in seen.episodes), 40), (
+    assert wait_until(lambda: any(stamp(r.msg) > t_new for r in seen.episodes), 40), (
         "no episode finished after the restart")
     assert wait_until(lambda: seen.latest_version() > v_before, 40), (
         f"trainer did not learn from the new sim: versions {seen.versions()}")
-    report = (f"sim back (new episode 0) {t_new - t_kill:.1f}s after the kill; "
-              f"{len(idle)} actions while it was gone; versions {seen.versions()}")
+    after = [s for s in seen.states if stamp(s.msg) > t_new]
+    restarted_counter = min(int(s.msg.episode) for s in after)
+    report = (f"killed in episode {episode_at_kill}; new sim began episode 0 {t_new - t_kill:.1f}s "
+              f"after the kill ('{began[0].text}'); {len(idle)} actions while it was gone; "
+              f"first episode the watcher saw after: {restarted_counter}; versions "
+              f"{seen.versions()}")
     print(report)
     assert all(alive(p) for p in survivors.values()), (
         f"{[k for k, p in survivors.items() if not alive(p)]} died\n{launcher.output}")
     assert not any(f"{k} (pid" in launcher.output for k in survivors), launcher.output
     assert not idle, report
-    after = [s for s in seen.states if s.t > t_new]
-    assert after and all(s.msg.missed_actions == 0 for s in after if s.msg.step > 0), (
-        f"missed actions after the restart: {[s.msg.missed_actions for s in after]}")
+    assert restarted_counter < episode_at_kill, report  # a new run of episodes, not a resume
+    # Step 0 of the new run may miss actors: the sim checks matching from its own side only, and
+    # an actor whose reader has not matched the new sim's writer yet drops that observation.
+    first_missed = next((int(s.msg.missed_actions) for s in after if s.msg.step == 1), None)
+    later = [int(s.msg.missed_actions) for s in after if s.msg.step > 1 or s.msg.episode > 0]
+    print(f"missed at the new run's step 0: {first_missed}; later steps missing: {sum(later)}")
+    assert not any(later), f"missed actions after the new run's step 0: {later}"
 
 
 WARMUP = 9999
@@ -204,7 +225,7 @@ def key(m: object) -> tuple[int, ...]:
 
 def test_recorder_killed_leaves_readable_mcap_and_replay_says_truncated(tmp_path: Path) -> None:
     out = tmp_path / "run.mcap"
-    ns = "/recfault"
+    ns = "/f_recfault"
     msgs = list(team_stream(episodes=24, max_steps=12))  # > 1 chunk of 256 KiB
     peer = Peer("rec_fault_pub")
     pubs = {o.topic: peer.node.create_publisher(type(o.message), f"{ns}/{o.topic}", STEP)

@@ -77,7 +77,7 @@ class SimNode(Node):
         self.steps_total = 0
         self.t_last_log = 0.0
         self.steps_at_last_log = 0
-        self._missed_logged = False
+        self._missed_logged_episode = -1
         period = min(0.01, cfg.step_deadline / 4)
         self.tick: Timer = self.create_timer(period, self.on_tick)
         self.get_logger().info(
@@ -111,13 +111,13 @@ class SimNode(Node):
                 self.finish(1)
             return
         if now >= self.deadline:
-            missing = self.sim.missing()
-            if not self._missed_logged:
-                self._missed_logged = True
+            if self._missed_logged_episode != self.sim.episode:
+                self._missed_logged_episode = self.sim.episode
                 self.get_logger().warning(
                     f"step deadline {self.cfg.step_deadline}s passed at episode "
-                    f"{self.sim.episode} step {self.sim.step}: robots {missing} take 'stay' "
-                    "(logged once; counts in TeamState.missed_actions and the episode summary)")
+                    f"{self.sim.episode} step {self.sim.step}: robots {self.sim.missing()} take "
+                    "'stay' (logged once per episode; every miss is counted in "
+                    "TeamState.missed_actions and the episode summary)")
             self.advance()
         if now - self.t_last_log >= LOG_EVERY_S:
             rate = (self.steps_total - self.steps_at_last_log) / (now - self.t_last_log)

@@ -36,5 +36,5 @@ def test_kill_during_writes_leaves_previous_files_valid(tmp_path: Path) -> None:
         leftovers = len(list(tmp_path.glob(".*.tmp")))
     took = time.monotonic() - t_start
     print(f"{KILLS} kills in {took:.1f}s; (weights, checkpoint) version after each: {versions}; "
-          f"temp files left by the last kill: {leftovers}")
+          f"temp files left over: {leftovers}")
     assert len({v for v, _ in versions}) > 1, f"the writer never got past a first write: {versions}"

@@ -15,7 +15,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
-    package_data={PACKAGE: ["data/*.npz"]},
+    package_data={PACKAGE: ["data/*.npz", "data/*.xml"]},
     install_requires=["setuptools"],
     zip_safe=False,
     maintainer="sdhn developers",

@@ -43,6 +43,8 @@ class Drop:
 def weights_error_kind(reason: str) -> str:
     """A short kind for a WeightsError reason (the node counts and logs once per kind)."""
     text = reason.lower()
+    if text.startswith("oversized"):
+        return "oversized_payload"
     if "sha256" in text:
         return "bad_sha256"
     if "format" in text and "unknown" in text:
@@ -125,13 +127,33 @@ class ActorCore:
                         f"expects {self.runtime.spec.obs_size}")
         if not np.isfinite(obs).all():
             return Drop("non_finite_obs", "observation contains NaN or Inf")
+        order = self._order(episode, step)
+        if order is not None:
+            return order
         if step == 0 or episode != self.episode:
             self.hidden = self.runtime.initial_state(1)
             self.episode, self.last_step = episode, None
-        elif self.last_step is not None and step <= self.last_step:
-            return Drop("stale_step", f"step {step} of episode {episode} is not after the last "
-                        f"answered step {self.last_step}")
         action, logp, self.hidden = self.runtime.act(obs[None], self.hidden, self.greedy,
                                                      self.rng, robot_id=self.robot_id)
         self.last_step = step
         return Decision(int(action[0]), float(logp[0]), self.runtime.version)
+
+    def _order(self, episode: int, step: int) -> Drop | None:
+        """Drop an observation from the past or the future of the episode being answered.
+
+        The simulator sends every step of an episode in order (reliable, in-order topic), so an
+        actor that already answered (e, s) only ever sees (e, s + 1) next, or step 0 of a new
+        episode (also after a simulator restart, whose counter starts again at 0). Anything else
+        is dropped *without* touching the GRU state: one stray message must not reset it or make
+        the real next steps look stale. An actor that has answered nothing yet (just started or
+        restarted mid-episode) takes whatever comes. Step 0 is always taken: a simulator
+        restarted in episode 0 sends (0, 0) again, which a replayed step 0 cannot be told from."""
+        if self.episode is None or self.last_step is None or step == 0:
+            return None
+        if (episode, step) <= (self.episode, self.last_step):
+            return Drop("stale_step", f"episode {episode} step {step} is not after the last "
+                        f"answered episode {self.episode} step {self.last_step}")
+        if episode != self.episode or step > self.last_step + 1:
+            return Drop("future_step", f"episode {episode} step {step} skips ahead of the last "
+                        f"answered episode {self.episode} step {self.last_step}")
+        return None

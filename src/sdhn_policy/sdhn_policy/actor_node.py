@@ -49,15 +49,17 @@ class ActorNode(Node):
         if not isinstance(seed, int) or seed < 0:
             raise ConfigError(f"seed: got {seed!r}; allowed: an integer >= 0")
         runtime = None
+        allowed = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait "
+                   "for the weights topic)")
         if weights_file:
             try:
                 runtime = ActorRuntime.from_file(weights_file)
             except WeightsError as e:
-                raise ConfigError(f"weights_file: {weights_file}: {e.reason}") from e
+                raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {allowed}") from e
         try:
             self.core = ActorCore(robot_id, num_robots, greedy, seed, runtime)
         except WeightsError as e:
-            raise ConfigError(f"weights_file: {weights_file}: {e.reason}") from e
+            raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {allowed}") from e
         self.ns, self.robot_id = ns, robot_id
         self.drops: Counter[str] = Counter()
         self.obs_sub: Subscription | None = None

@@ -248,16 +248,25 @@ def sidecar_path(path: str | os.PathLike[str]) -> Path:
 
 
 def save_actor_file(path: str | os.PathLike[str], blob: ActorWeights) -> None:
-    """Write ``<stem>.safetensors`` and its ``<stem>.json`` sidecar atomically."""
+    """Write ``<stem>.safetensors`` and its ``<stem>.json`` sidecar, each atomically.
+
+    Two files cannot be renamed at once, so the sidecar goes first and also names the payload it
+    replaces (``previous``): a process killed between the two renames leaves the new sidecar
+    with the old payload, which :func:`load_actor_file` still accepts as the old version."""
     spec, _ = decode_weights(blob)  # never write something we could not read back
-    atomic_write_bytes(path, blob.payload)
-    side = {
+    side: dict[str, Any] = {
         "format": blob.format,
         "version": blob.version,
         "sha256": blob.sha256,
         "spec": spec.to_json(),
     }
+    try:
+        old = json.loads(sidecar_path(path).read_text())
+        side["previous"] = {k: old[k] for k in ("format", "version", "sha256")}
+    except (OSError, ValueError, KeyError, TypeError):
+        pass  # no (readable) earlier file: nothing to fall back to
     atomic_write_bytes(sidecar_path(path), json.dumps(side, indent=2).encode() + b"\n")
+    atomic_write_bytes(path, blob.payload)
 
 
 def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
@@ -265,8 +274,17 @@ def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
     path = Path(path)
     try:
         side = json.loads(sidecar_path(path).read_text())
+        payload = path.read_bytes()
+        entry = side
+        previous = side.get("previous")
+        if (
+            isinstance(previous, dict)
+            and previous.get("sha256") == sha256_hex(payload)
+            and side.get("sha256") != previous.get("sha256")
+        ):
+            entry = previous  # interrupted between the sidecar and the payload: the old pair
         blob = ActorWeights(
-            str(side["format"]), int(side["version"]), path.read_bytes(), str(side["sha256"])
+            str(entry["format"]), int(entry["version"]), payload, str(entry["sha256"])
         )
     except FileNotFoundError as e:
         raise WeightsError(f"missing weights file: {e.filename}") from e

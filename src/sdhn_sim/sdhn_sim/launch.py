@@ -49,6 +49,7 @@ from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names
 
 MODES = ("deploy", "train")
+FASTDDS_PROFILE = Path(__file__).resolve().parent / "data" / "fastdds.xml"
 RESTART_POLICIES = ("never", "on-failure")
 
 
@@ -228,10 +229,11 @@ class ChildSpec:
     executable: str
     ros_args: list[str]
     essential: bool = False  # the graph ends when this child ends (the simulator)
+    restart_args: list[str] = field(default_factory=list)  # appended when it is restarted
 
-    def command(self) -> list[str]:
+    def command(self, restart: bool = False) -> list[str]:
         return [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", self.package, self.executable,
-                "--ros-args", *self.ros_args]
+                "--ros-args", *self.ros_args, *(self.restart_args if restart else [])]
 
 
 def graph(cfg: LaunchConfig) -> list[ChildSpec]:
@@ -249,7 +251,10 @@ def graph(cfg: LaunchConfig) -> list[ChildSpec]:
                 *_param("rollout_steps", t.rollout_steps), *_param("resume", t.resume)]
         if t.config:
             args += _param("config", str(Path(t.config).resolve()))
-        children.append(ChildSpec("trainer", "sdhn_train", "trainer", ["-r", f"__ns:={ns}", *args]))
+        # A restarted trainer continues from its last checkpoint (without resume it would refuse
+        # the run_dir its first start filled, exit 2, and never come back).
+        children.append(ChildSpec("trainer", "sdhn_train", "trainer", ["-r", f"__ns:={ns}", *args],
+                                  restart_args=_param("resume", True)))
     extra = (int(cfg.recorder) + int(cfg.mode == "train")) if cfg.wait_for_observers else 0
     children.append(ChildSpec("sim", "sdhn_sim", "sim", [
         "-r", f"__ns:={ns}", *common, *_param("env", cfg.env), *_param("seed", cfg.seed),
@@ -289,7 +294,7 @@ class Child:
 
     def start(self) -> None:
         self.log = open(self.log_path, "ab")  # noqa: SIM115 - lives as long as the child
-        self.proc = subprocess.Popen(self.spec.command(), stdout=self.log,
+        self.proc = subprocess.Popen(self.spec.command(restart=self.restarts > 0), stdout=self.log,
                                      stderr=subprocess.STDOUT, env=self.env,
                                      preexec_fn=_die_with_parent)  # noqa: PLW1509 - no threads
         self.ready = False
@@ -352,6 +357,8 @@ class Launcher:
         env.setdefault("ROS_LOG_DIR", str(self.run_dir / "ros_logs"))
         env["PYTHONUNBUFFERED"] = "1"
         env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+        # Faster participant announcements, so a restarted child matches the others in < 1 s.
+        env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
         self.children = [Child(spec, self.log_dir, env) for spec in graph(cfg)]
         self.stop_requested = False
         self.failed: list[str] = []

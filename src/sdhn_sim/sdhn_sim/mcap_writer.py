@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import TracebackType
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, cast
 
 from mcap.writer import CompressionType, Writer
 from rclpy.serialization import serialize_message
@@ -27,15 +27,45 @@ def type_name_of(message: Any) -> str:
     return f"{package}/msg/{type(message).__name__}"
 
 
+class _WriteThrough:
+    """A file whose every write reaches the OS at once. The MCAP writer keeps messages in its
+    chunk builder and writes only whole records (the header, then each finished chunk and its
+    index), so this costs a few flushes per chunk; without it the header and the end of the last
+    finished chunk sat in Python's buffer, and a recorder killed before its first 8 KiB left an
+    empty file (not even MCAP magic) and one killed later lost the chunk it had just finished."""
+
+    def __init__(self, path: Path) -> None:
+        self._file = open(path, "wb")  # noqa: SIM115 - closed in close()
+
+    def write(self, data: bytes) -> int:
+        n = self._file.write(data)
+        self._file.flush()
+        return n
+
+    def tell(self) -> int:
+        return self._file.tell()
+
+    def flush(self) -> None:
+        self._file.flush()
+
+    @property
+    def closed(self) -> bool:
+        return self._file.closed
+
+    def close(self) -> None:
+        self._file.close()
+
+
 class McapRosWriter:
     """One MCAP file; channels are created on first use of a topic."""
 
     def __init__(self, path: str | Path, chunk_bytes: int = CHUNK_BYTES) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._stream: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._stream = _WriteThrough(self.path)
         self._writer = Writer(
-            self._stream, chunk_size=chunk_bytes, compression=CompressionType.ZSTD
+            cast(BinaryIO, self._stream), chunk_size=chunk_bytes,
+            compression=CompressionType.ZSTD,
         )
         self._writer.start(profile="ros2", library="sdhn")
         self._schemas: dict[str, int] = {}

@@ -213,6 +213,12 @@ class SimNode(Node):
         signal.raise_signal(signal.SIGTERM)
 
 
+def _on_stop(node: Node) -> None:
+    if isinstance(node, SimNode):
+        node.get_logger().info(f"totals: {node.steps_total} steps, {node.sim.total_missed} "
+                               f"missed actions, drops {dict(node.drops)}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     made: list[SimNode] = []
 
@@ -220,5 +226,5 @@ def main(argv: Sequence[str] | None = None) -> int:
         made.append(SimNode(context))
         return made[0]
 
-    code = run_node(make, argv)
+    code = run_node(make, argv, _on_stop)
     return code or (made[0].exit_code if made else 0)

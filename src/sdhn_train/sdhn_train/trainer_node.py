@@ -82,6 +82,7 @@ class TrainerNode(Node):
 
         # Heavy imports after validation, so a bad parameter fails fast.
         from sdhn_sim.envs import make_env
+        from sdhn_train import checkpoint as ckpt
         from sdhn_train.algorithms import EnvInfo
         from sdhn_train.remote_learner import RemoteLearner, latest_checkpoint
 
@@ -92,7 +93,12 @@ class TrainerNode(Node):
         env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
         self.info = EnvInfo.of(env)
         self.learner = RemoteLearner(cfg, self.info, run_dir)
-        resumed = self.learner.resume_latest() if p["resume"] else None
+        try:
+            resumed = self.learner.resume_latest() if p["resume"] else None
+        except (ckpt.CheckpointError, KeyError, ValueError, RuntimeError) as e:
+            raise ConfigError(f"resume: the newest checkpoint in {run_dir} cannot be loaded "
+                              f"({str(e)[:200]}); allowed: a run_dir with a valid checkpoint, "
+                              "or resume:=false with a new run_dir") from e
         if resumed is None:
             self.learner.save_checkpoint()
         self.run_dir = run_dir

@@ -230,8 +230,20 @@ class ChildSpec:
     essential: bool = False  # the graph ends when this child ends (the simulator)
 
     def command(self) -> list[str]:
+        """The package's console script next to this interpreter (what ``ros2 run`` runs from
+        ``lib/<package>``), else the ``ros2 run`` shim, which finds it by package metadata
+        (~0.1 s more start-up per process)."""
+        script = Path(sys.executable).parent / self.executable
+        if script.is_file() and _entry_package(script) == self.package:
+            return [str(script), "--ros-args", *self.ros_args]
         return [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", self.package, self.executable,
                 "--ros-args", *self.ros_args]
+
+
+def _entry_package(script: Path) -> str | None:
+    """The top-level package a pip console script imports its entry point from."""
+    m = re.search(r"^from (\w+)[.\w]* import", script.read_text(errors="replace"), re.M)
+    return m.group(1) if m else None
 
 
 def graph(cfg: LaunchConfig) -> list[ChildSpec]:

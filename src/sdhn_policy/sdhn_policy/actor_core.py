@@ -7,7 +7,7 @@ the version that produced it. The GRU state goes back to zeros when a new episod
 (step 0 or a different episode counter). NumPy only: importing this never imports torch.
 
     core = ActorCore(robot_id=2, num_robots=4, greedy=True, seed=0)
-    core.offer_weights(fmt, version, payload, sha256)    # raises WeightsError if rejected
+    core.offer_weights(fmt, version, payload, sha256)    # WeightsError if rejected
     out = core.on_obs(episode, step, robot_id, num_robots, obs)
     if isinstance(out, Decision): publish(out.action, out.log_prob, out.version)
     else: count(out.kind, out.reason)                    # a Drop
@@ -90,17 +90,18 @@ class ActorCore:
             raise WeightsError(f"incompatible weights: trained for {spec.num_robots} robots "
                                f"(one-hot id), this team has {self.num_robots}")
 
-    def offer_weights(self, fmt: str, version: int, payload: bytes, sha256: str) -> None:
-        """Validate new weights and queue them for the next step (WeightsError if rejected; the
-        old weights stay in use). Re-offering the queued or current version is a no-op."""
+    def offer_weights(self, fmt: str, version: int, payload: bytes, sha256: str) -> bool:
+        """Validate new weights and queue them for the next step; False when that version is
+        already queued or in use (a no-op). WeightsError if rejected: the old weights stay."""
         newest = self._pending or self.runtime
         if newest is not None and newest.version == version and version > 0:
-            return
+            return False
         if len(payload) > MAX_WEIGHTS_BYTES:
             raise WeightsError(f"oversized payload: {len(payload)} bytes > {MAX_WEIGHTS_BYTES}")
         rt = ActorRuntime.from_bytes(fmt, version, payload, sha256)
         self._check(rt)
         self._pending = rt
+        return True
 
     def _swap(self) -> None:
         if self._pending is None:

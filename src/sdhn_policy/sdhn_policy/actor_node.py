@@ -81,10 +81,13 @@ class ActorNode(Node):
 
     def on_weights(self, msg: PolicyWeights) -> None:
         try:
-            self.core.offer_weights(msg.format, int(msg.version), bytes(msg.payload), msg.sha256)
+            new = self.core.offer_weights(msg.format, int(msg.version), bytes(msg.payload),
+                                          msg.sha256)
         except WeightsError as e:
             self.drop(weights_error_kind(e.reason), f"weights version {msg.version}: {e.reason}; "
                       f"keeping version {self.core.version}")
+            return
+        if not new:
             return
         self.get_logger().info(f"weights version {msg.version} accepted (used from the next step)")
         if self.obs_sub is None:

@@ -232,8 +232,21 @@ class ChildSpec:
     restart_args: list[str] = field(default_factory=list)  # appended when it is restarted
 
     def command(self, restart: bool = False) -> list[str]:
+        """The package's console script next to this interpreter (what ``ros2 run`` runs from
+        ``lib/<package>``), else the ``ros2 run`` shim, which finds it by package metadata
+        (~0.1 s more start-up per process). A restart adds ``restart_args`` (resume:=true)."""
+        ros_args = [*self.ros_args, *(self.restart_args if restart else [])]
+        script = Path(sys.executable).parent / self.executable
+        if script.is_file() and _entry_package(script) == self.package:
+            return [str(script), "--ros-args", *ros_args]
         return [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", self.package, self.executable,
-                "--ros-args", *self.ros_args, *(self.restart_args if restart else [])]
+                "--ros-args", *ros_args]
+
+
+def _entry_package(script: Path) -> str | None:
+    """The top-level package a pip console script imports its entry point from."""
+    m = re.search(r"^from (\w+)[.\w]* import", script.read_text(errors="replace"), re.M)
+    return m.group(1) if m else None
 
 
 def graph(cfg: LaunchConfig) -> list[ChildSpec]:

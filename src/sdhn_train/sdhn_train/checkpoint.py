@@ -8,6 +8,7 @@ continues exactly like an uninterrupted one. Never pickles.
 from __future__ import annotations
 
 import json
+import random
 from pathlib import Path
 from typing import Any
 
@@ -135,3 +136,37 @@ def load_module(prefix: str, module: torch.nn.Module, arrays: dict[str, np.ndarr
     sd = {k[len(prefix) + 1 :]: torch.from_numpy(v.copy()) for k, v in arrays.items()
           if k.startswith(prefix + ".")}
     module.load_state_dict(sd, strict=True)
+
+
+def learner_state(learner: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """A learner's networks, optimisers and random generators as arrays plus JSON metadata.
+
+    Shared by the in-process trainer and the ROS trainer node, which add their own fields."""
+    arrays: dict[str, np.ndarray] = {}
+    for prefix, module in (("actor", learner.actor), ("critic", learner.critic),
+                           ("target", learner.target_critic)):
+        arrays.update(module_arrays(prefix, module))
+    opt_meta = {}
+    for prefix, opt in (("optim.actor", learner.actor_opt), ("optim.critic", learner.critic_opt)):
+        a, m = optimizer_to_arrays(prefix, opt)
+        arrays.update(a)
+        opt_meta[prefix] = m
+    arrays["rng.torch"] = torch.get_rng_state().numpy()
+    meta = {"num_updates": learner.num_updates, "optimizers": opt_meta,
+            "rng_numpy": learner.rng.bit_generator.state,
+            "rng_python": list(random.getstate()[1])}
+    return arrays, meta
+
+
+def restore_learner_state(learner: Any, arrays: dict[str, np.ndarray],
+                          meta: dict[str, Any]) -> None:
+    """Inverse of :func:`learner_state`."""
+    for prefix, module in (("actor", learner.actor), ("critic", learner.critic),
+                           ("target", learner.target_critic)):
+        load_module(prefix, module, arrays)
+    for prefix, opt in (("optim.actor", learner.actor_opt), ("optim.critic", learner.critic_opt)):
+        optimizer_from_arrays(prefix, opt, arrays, meta["optimizers"][prefix])
+    torch.set_rng_state(torch.from_numpy(arrays["rng.torch"].copy()))
+    learner.rng.bit_generator.state = meta["rng_numpy"]
+    random.setstate((3, tuple(meta["rng_python"]), None))
+    learner.num_updates = int(meta["num_updates"])

@@ -15,7 +15,6 @@ hypergraphs (P_H, H, skewness) over the rollout for the ``hypergraph`` topic.
 
 from __future__ import annotations
 
-import random
 import re
 import time
 from dataclasses import dataclass, field
@@ -86,21 +85,9 @@ class RemoteLearner:
         return self.learner.export_actor(self.version)
 
     def save_checkpoint(self) -> Path:
-        lr = self.learner
-        arrays: dict[str, np.ndarray] = {}
-        for prefix, module in (("actor", lr.actor), ("critic", lr.critic),
-                               ("target", lr.target_critic)):
-            arrays.update(ckpt.module_arrays(prefix, module))
-        opt_meta = {}
-        for prefix, opt in (("optim.actor", lr.actor_opt), ("optim.critic", lr.critic_opt)):
-            a, m = ckpt.optimizer_to_arrays(prefix, opt)
-            arrays.update(a)
-            opt_meta[prefix] = m
-        arrays["rng.torch"] = torch.get_rng_state().numpy()
-        meta = {"version": self.version, "num_updates": lr.num_updates,
-                "transitions": self.transitions, "config": self.cfg.to_dict(),
-                "optimizers": opt_meta, "rng_numpy": lr.rng.bit_generator.state,
-                "rng_python": list(random.getstate()[1])}
+        arrays, meta = ckpt.learner_state(self.learner)
+        meta.update(version=self.version, transitions=self.transitions,
+                    config=self.cfg.to_dict())
         path = self.run_dir / CHECKPOINT_DIR / f"version_{self.version:06d}"
         ckpt.save_checkpoint(path, arrays, meta)
         save_actor_file(self.run_dir / "actor.safetensors", self.weights())
@@ -116,15 +103,7 @@ class RemoteLearner:
 
     def load_checkpoint(self, path: Path) -> None:
         arrays, meta = ckpt.load_checkpoint(path)
-        lr = self.learner
-        for prefix, module in (("actor", lr.actor), ("critic", lr.critic),
-                               ("target", lr.target_critic)):
-            ckpt.load_module(prefix, module, arrays)
-        for prefix, opt in (("optim.actor", lr.actor_opt), ("optim.critic", lr.critic_opt)):
-            ckpt.optimizer_from_arrays(prefix, opt, arrays, meta["optimizers"][prefix])
-        torch.set_rng_state(torch.from_numpy(arrays["rng.torch"].copy()))
-        lr.rng.bit_generator.state = meta["rng_numpy"]
-        lr.num_updates = int(meta["num_updates"])
+        ckpt.restore_learner_state(self.learner, arrays, meta)
         self.version = int(meta["version"])
         self.transitions = int(meta.get("transitions", 0))
 

@@ -114,18 +114,9 @@ class Trainer:
 
     def save_checkpoint(self) -> Path:
         lr = self.learner
-        arrays: dict[str, np.ndarray] = {}
-        for prefix, module in (("actor", lr.actor), ("critic", lr.critic),
-                               ("target", lr.target_critic)):
-            arrays.update(ckpt.module_arrays(prefix, module))
-        opt_meta = {}
-        for prefix, opt in (("optim.actor", lr.actor_opt), ("optim.critic", lr.critic_opt)):
-            a, m = ckpt.optimizer_to_arrays(prefix, opt)
-            arrays.update(a)
-            opt_meta[prefix] = m
+        arrays, meta = ckpt.learner_state(lr)
         env_arrays, env_values = ckpt.env_snapshot(self.env)
         arrays.update({f"env.{k}": v for k, v in env_arrays.items()})
-        arrays["rng.torch"] = torch.get_rng_state().numpy()
         arrays["collector.obs"] = self.collector.obs
         arrays["collector.state"] = self.collector.state
         arrays["collector.actor_h"] = self.collector.actor_h
@@ -134,12 +125,8 @@ class Trainer:
         if hasattr(lr, "extra_state"):  # QMIX/HGCN-MIX: replay buffer, episodes in progress
             extra, learner_values = lr.extra_state()
             arrays.update({f"learner.{k}": v for k, v in extra.items()})
-        meta = {
-            "global_step": self.global_step, "num_updates": lr.num_updates,
-            "config": self.cfg.to_dict(), "optimizers": opt_meta, "env_values": env_values,
-            "rng_numpy": lr.rng.bit_generator.state, "rng_python": list(random.getstate()[1]),
-            "learner": learner_values,
-        }
+        meta.update(global_step=self.global_step, config=self.cfg.to_dict(),
+                    env_values=env_values, learner=learner_values)
         path = self.run_dir / "checkpoints" / f"step_{self.global_step:012d}"
         ckpt.save_checkpoint(path, arrays, meta)
         self.last_checkpoint = path
@@ -148,18 +135,9 @@ class Trainer:
     def load_checkpoint(self, path: Path) -> None:
         arrays, meta = ckpt.load_checkpoint(path)
         lr = self.learner
-        ckpt.load_module("actor", lr.actor, arrays)
-        ckpt.load_module("critic", lr.critic, arrays)
-        ckpt.load_module("target", lr.target_critic, arrays)
-        ckpt.optimizer_from_arrays("optim.actor", lr.actor_opt, arrays,
-                                   meta["optimizers"]["optim.actor"])
-        ckpt.optimizer_from_arrays("optim.critic", lr.critic_opt, arrays,
-                                   meta["optimizers"]["optim.critic"])
+        ckpt.restore_learner_state(lr, arrays, meta)
         ckpt.env_restore(self.env, {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
                          meta["env_values"])
-        torch.set_rng_state(torch.from_numpy(arrays["rng.torch"].copy()))
-        lr.rng.bit_generator.state = meta["rng_numpy"]
-        random.setstate((3, tuple(meta["rng_python"]), None))
         self.collector.obs = arrays["collector.obs"].copy()
         self.collector.state = arrays["collector.state"].copy()
         self.collector.actor_h = arrays["collector.actor_h"].copy()
@@ -168,7 +146,6 @@ class Trainer:
             lr.load_extra_state({k[8:]: v for k, v in arrays.items() if k.startswith("learner.")},
                                 meta.get("learner", {}))
         self.global_step = int(meta["global_step"])
-        lr.num_updates = int(meta["num_updates"])
         self.last_checkpoint = path
 
     # -- the loop ------------------------------------------------------------------------------

@@ -19,6 +19,7 @@ from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -72,6 +73,10 @@ class SimNode(Node):
             for i in range(n)]
         self.drops: Counter[str] = Counter()
         self.started = False
+        # Until every robot has answered the first step, a missed deadline re-sends that step to
+        # the silent robots instead of stepping with 'stay': matching is only visible from the
+        # sim's side, so an actor may not yet receive from a sim that already sees it.
+        self.handshake = True
         self.t_start = time.monotonic()
         self.deadline = float("inf")
         self.steps_total = 0
@@ -110,7 +115,9 @@ class SimNode(Node):
                     f"action publishers {[s.get_publisher_count() for s in self.action_subs]})")
                 self.finish(1)
             return
-        if now >= self.deadline:
+        if now >= self.deadline and self.handshake and now - self.t_start < self.cfg.start_timeout:
+            self.resend_first_step()
+        elif now >= self.deadline:
             if self._missed_logged_episode != self.sim.episode:
                 self._missed_logged_episode = self.sim.episode
                 self.get_logger().warning(
@@ -143,7 +150,17 @@ class SimNode(Node):
         elif self.sim.complete:
             self.advance()
 
+    def resend_first_step(self) -> None:
+        frame, silent = self.sim.frame, self.sim.missing()
+        assert frame is not None
+        stamp = self.get_clock().now().to_msg()
+        for i in silent:
+            self.obs_pubs[i].publish(self.observation(frame, i, stamp))
+        self.get_logger().info(f"first step: no answer yet from robots {silent}; re-sent")
+        self.deadline = time.monotonic() + self.cfg.step_deadline
+
     def advance(self) -> None:
+        self.handshake = False
         frame, result = self.sim.advance()
         self.steps_total += 1
         self.publish(frame)
@@ -163,13 +180,7 @@ class SimNode(Node):
         stamp = self.get_clock().now().to_msg()
         n = self.sim.num_robots
         for i, pub in enumerate(self.obs_pubs):
-            m = RobotObservation()
-            m.header.stamp = stamp
-            m.header.frame_id = "map"
-            m.episode, m.step, m.robot_id, m.num_robots = f.episode, f.step, i, n
-            m.obs = array.array("f", np.ascontiguousarray(f.obs[i], dtype=np.float32).tobytes())
-            m.reward, m.terminated, m.truncated = float(f.reward), f.terminated, f.truncated
-            pub.publish(m)
+            pub.publish(self.observation(f, i, stamp))
         s = TeamState()
         s.header.stamp = stamp
         s.header.frame_id = "map"
@@ -181,6 +192,15 @@ class SimNode(Node):
         self.state_pub.publish(s)
         self.deadline = (float("inf") if f.done
                          else time.monotonic() + self.cfg.step_deadline)
+
+    def observation(self, f: Frame, i: int, stamp: Time) -> RobotObservation:
+        m = RobotObservation()
+        m.header.stamp = stamp
+        m.header.frame_id = "map"
+        m.episode, m.step, m.robot_id, m.num_robots = f.episode, f.step, i, self.sim.num_robots
+        m.obs = array.array("f", np.ascontiguousarray(f.obs[i], dtype=np.float32).tobytes())
+        m.reward, m.terminated, m.truncated = float(f.reward), f.terminated, f.truncated
+        return m
 
     def publish_summary(self, r: EpisodeResult) -> None:
         m = EpisodeSummary()

@@ -38,7 +38,6 @@ import signal
 import subprocess
 import sys
 import time
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -47,6 +46,7 @@ import yaml
 
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names
+from sdhn_sim.overrides import OverrideError, set_field
 
 MODES = ("deploy", "train")
 FASTDDS_PROFILE = Path(__file__).resolve().parent / "data" / "fastdds.xml"
@@ -98,48 +98,6 @@ def team_size(env: str) -> int:
     if env in MAIF_CONFIGS:
         return int(MAIF_CONFIGS[env].num_robots)
     return int(RWARE_TASKS[env])
-
-
-def _coerce(name: str, tp: Any, value: Any) -> Any:
-    if tp is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no"):
-            return value.lower() in ("true", "1", "yes")
-        raise LaunchConfigError(f"{name}: expected true or false, got {value!r}")
-    try:
-        if tp is int and not isinstance(value, bool):
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError
-            return int(value)
-        if tp is float and not isinstance(value, bool):
-            return float(value)
-        if tp is str:
-            return "" if value is None else str(value)
-    except (TypeError, ValueError):
-        pass
-    raise LaunchConfigError(f"{name}: expected {tp.__name__}, got {value!r}")
-
-
-def set_field(obj: Any, dotted: str, value: Any, prefix: str = "") -> None:
-    head, _, rest = dotted.partition(".")
-    hints = typing.get_type_hints(type(obj))
-    full = f"{prefix}{head}"
-    if head not in hints:
-        raise LaunchConfigError(f"{full}: unknown field; allowed: {', '.join(hints)}")
-    sub = getattr(obj, head)
-    if dataclasses.is_dataclass(sub):
-        if rest:
-            set_field(sub, rest, value, f"{full}.")
-        elif isinstance(value, dict):
-            for k, v in value.items():
-                set_field(sub, str(k), v, f"{full}.")
-        else:
-            raise LaunchConfigError(f"{full}: expected a mapping, got {value!r}")
-    elif rest:
-        raise LaunchConfigError(f"{full}: is not a section")
-    else:
-        setattr(obj, head, _coerce(full, hints[head], value))
 
 
 def resolve_weights(path: str) -> Path:
@@ -542,7 +500,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         cfg = load_config(args.config, args.set)
-    except LaunchConfigError as e:
+    except (LaunchConfigError, OverrideError) as e:
         print(f"launch: invalid configuration: {e}", file=sys.stderr)
         return 2
     if args.print_config:

@@ -8,13 +8,13 @@ values.
 from __future__ import annotations
 
 import dataclasses
-import types
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
+
+from sdhn_sim import overrides
 
 ENV_NAMES: tuple[str, ...] = (
     "maif-tiny", "maif-10", "maif-16", "maif-20", "rware-3", "rware-6", "rware-9",
@@ -172,45 +172,6 @@ class Config:
 # --- building from YAML / overrides -----------------------------------------------------------
 
 
-def _coerce(path: str, tp: Any, value: Any) -> Any:
-    """Convert ``value`` (YAML scalar or CLI string) to the annotated type ``tp``."""
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        is_null = value is None or (isinstance(value, str) and value.lower() in ("null", "none"))
-        if is_null and type(None) in args:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        return _coerce(path, inner[0], value)
-    if origin is list:
-        if isinstance(value, str):
-            value = yaml.safe_load(value if value.startswith("[") else f"[{value}]")
-        if not isinstance(value, list):
-            raise ConfigError(f"{path}: expected a list, got {value!r}")
-        return [_coerce(path, args[0], v) for v in value]
-    if tp is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in ("true", "1", "yes", "on", "false", "0",
-                                                        "no", "off"):
-            return value.lower() in ("true", "1", "yes", "on")
-        raise ConfigError(f"{path}: expected true or false, got {value!r}")
-    try:
-        if tp is int:
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError
-            return int(float(value)) if isinstance(value, str) else int(value)
-        if tp is float:
-            return float(value)
-        if tp is str:
-            return str(value)
-    except (TypeError, ValueError):
-        pass
-    else:
-        raise ConfigError(f"{path}: unsupported type {tp}")
-    raise ConfigError(f"{path}: expected {getattr(tp, '__name__', tp)}, got {value!r}")
-
-
 def set_field(cfg: Config, dotted: str, value: Any) -> None:
     """Set ``section.field`` (e.g. ``ppo.lr``) with type conversion; ConfigError if unknown."""
     parts = dotted.split(".")
@@ -222,11 +183,10 @@ def set_field(cfg: Config, dotted: str, value: Any) -> None:
     if section_name not in sections:
         raise ConfigError(f"{dotted}: unknown section {section_name!r}; allowed: "
                           f"{', '.join(sections)}")
-    section = getattr(cfg, section_name)
-    hints = typing.get_type_hints(type(section))
-    if name not in hints:
-        raise ConfigError(f"{dotted}: unknown field; {section_name} has: {', '.join(hints)}")
-    setattr(section, name, _coerce(dotted, hints[name], value))
+    try:
+        overrides.set_field(getattr(cfg, section_name), name, value, prefix=f"{section_name}.")
+    except overrides.OverrideError as e:
+        raise ConfigError(str(e)) from None
 
 
 def apply_dict(cfg: Config, data: dict[str, Any]) -> None:

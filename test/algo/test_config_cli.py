@@ -7,15 +7,17 @@ from pathlib import Path
 import pytest
 
 from sdhn_train import cli
-from sdhn_train.algorithms import get_algorithm, resolve_ppo
+from sdhn_train.algorithms.mappo import MAPPO
+from sdhn_train.algorithms.sdhn import SDHN
 from sdhn_train.config import Config, ConfigError, set_field, validate
+from sdhn_train.learners.ppo import resolve_ppo
 
 
 def test_defaults_are_valid_and_resolve_per_algorithm() -> None:
     cfg = Config()
     validate(cfg)
-    sdhn = resolve_ppo(cfg.ppo, get_algorithm("sdhn"))
-    mappo = resolve_ppo(cfg.ppo, get_algorithm("mappo"))
+    sdhn = resolve_ppo(cfg.ppo, SDHN.default_lr, SDHN.default_target_tau)
+    mappo = resolve_ppo(cfg.ppo, MAPPO.default_lr, MAPPO.default_target_tau)
     assert (sdhn.lr, sdhn.target_tau) == (6e-4, 0.01)
     assert (mappo.lr, mappo.critic_lr, mappo.target_tau) == (3e-4, 3e-4, 1.0)
 

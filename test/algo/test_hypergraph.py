@@ -6,9 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from sdhn_train.critics import SDHNCritic
-from sdhn_train.hypergraph import HGCNLayer, binary_concrete, hgcn_propagate
-from sdhn_train.skewness import hyperedge_degrees, sample_skewness, skewness_loss, squashed_skewness
+from sdhn_train.algorithms.sdhn.critic import SDHNCritic
+from sdhn_train.algorithms.sdhn.hypergraph import HGCNLayer, binary_concrete, hgcn_propagate
+from sdhn_train.algorithms.sdhn.skewness import (
+    hyperedge_degrees,
+    sample_skewness,
+    skewness_loss,
+    squashed_skewness,
+)
 
 
 def dense_hgcn(x: np.ndarray, h: np.ndarray) -> np.ndarray:

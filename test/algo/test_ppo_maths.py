@@ -7,8 +7,7 @@ import pytest
 import torch
 from torch import nn
 
-from sdhn_train.critics import soft_update
-from sdhn_train.ppo import clipped_policy_loss
+from sdhn_train.learners.ppo import clipped_policy_loss, soft_update
 from sdhn_train.returns import gae_advantages, td_errors, value_targets
 
 

@@ -6,16 +6,19 @@ import numpy as np
 import torch
 
 from sdhn_sim.envs import make_env
-from sdhn_train.algorithms import EnvInfo, build_learner
+from sdhn_train.algorithms.sdhn import SDHN
+from sdhn_train.collector import RolloutCollector
 from sdhn_train.config import Config
-from sdhn_train.runner import RolloutCollector
+from sdhn_train.envinfo import EnvInfo
+from sdhn_train.learners.ppo import PPOLearner
 
 
 def test_replayed_log_probs_equal_behaviour_log_probs() -> None:
     env = make_env("maif-tiny", num_envs=3, seed=0, max_steps=7)  # episodes end inside rollouts
     cfg = Config()
     cfg.actor.use_robot_id = True
-    learner = build_learner(cfg, EnvInfo.of(env), np.random.default_rng(0))
+    learner = SDHN().build_learner(cfg, EnvInfo.of(env), np.random.default_rng(0))
+    assert isinstance(learner, PPOLearner)
     with torch.no_grad():
         for p in learner.actor.parameters():
             p.add_(0.3 * torch.randn_like(p))

@@ -15,13 +15,13 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_train.experiments import (
+from sdhn_train.analysis.experiments import (
     DONE,
     ExperimentError,
     load_suite,
     run_suite,
 )
-from sdhn_train.figures import make_figures
+from sdhn_train.analysis.figures import make_figures
 
 ROOT = Path(__file__).resolve().parents[2]
 SUITES = ROOT / "configs" / "suites"
@@ -100,7 +100,7 @@ def test_resume_after_kill(tmp_path: Path) -> None:
     # finished and the second has written a checkpoint.
     logdir = tmp_path / "logs"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    proc = subprocess.Popen([sys.executable, "-m", "sdhn_train.experiments", str(suite),
+    proc = subprocess.Popen([sys.executable, "-m", "sdhn_train.analysis.experiments", str(suite),
                              "--budget", "quick", "--logdir", str(logdir), "--jobs", "1"],
                             env=env, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)

@@ -12,10 +12,14 @@ import pytest
 import torch
 import yaml
 
+from sdhn_train.algorithms.mappo import MLPCritic
+from sdhn_train.algorithms.sdhn.critic import SDHNCritic
+from sdhn_train.analysis.figures import FigureError, lambda_sk, load_runs, main, make_figures
 from sdhn_train.config import Config
-from sdhn_train.critics import SDHNCritic
-from sdhn_train.figures import FigureError, load_runs, main, make_figures, write_ph_snapshot
+from sdhn_train.learners.base import HypergraphSamples
+from sdhn_train.learners.ppo import Critic
 from sdhn_train.rollout import Rollout
+from sdhn_train.runs import save_ph_snapshot
 
 METHODS = {"sdhn": {}, "mappo": {}, "qmix": {}, "dicg": {}, "hgcn_mix": {},
            "sdhn_wo_lsk": {"skew_loss": False}, "sdhn_wo_shr": {"stochastic_hyperedges": False}}
@@ -30,6 +34,12 @@ def _rollout(n: int, t: int = 3, b: int = 2, d: int = 57) -> Rollout:
     return Rollout(obs, state, np.zeros((t, b, n), np.int64), np.zeros((t, b, n), np.float32),
                    np.zeros((t, b), np.float32), z, z.copy(), obs, state,
                    np.zeros((b, n, 64), np.float32), None)
+
+
+def _samples(critic: Critic, r: Rollout) -> HypergraphSamples | None:
+    with torch.no_grad():
+        return critic.hypergraphs(torch.from_numpy(r.obs), critic.initial_state(r.shape[1]),
+                                  torch.from_numpy(r.resets()))
 
 
 def write_run(root: Path, task: str, method: str, seed: int, *, steps: int = 4000,
@@ -58,7 +68,7 @@ def write_run(root: Path, task: str, method: str, seed: int, *, steps: int = 400
     if method.startswith("sdhn"):
         n = ROBOTS[task]
         critic = SDHNCritic(57, 57 * n, n, num_hyperedges=5, skew_loss=method != "sdhn_wo_lsk")
-        write_ph_snapshot(run, steps, critic, _rollout(n))
+        save_ph_snapshot(run, steps, _samples(critic, _rollout(n)))
     return run
 
 
@@ -92,9 +102,11 @@ def test_every_figure_and_table(logdir: Path, tmp_path: Path) -> None:
 
 
 def test_ph_snapshot_only_for_hypergraph_critics(tmp_path: Path) -> None:
-    assert write_ph_snapshot(tmp_path, 1, torch.nn.Linear(2, 2), _rollout(4)) is None
+    mlp = MLPCritic(57 * 4, 4)
+    assert _samples(mlp, _rollout(4)) is None
+    assert save_ph_snapshot(tmp_path, 1, None) is None
     critic = SDHNCritic(57, 57 * 4, 4, num_hyperedges=3)
-    path = write_ph_snapshot(tmp_path, 7, critic, _rollout(4))
+    path = save_ph_snapshot(tmp_path, 7, _samples(critic, _rollout(4)))
     assert path is not None
     with np.load(path) as z:
         assert z["ph_last"].shape == (4, 3) and z["ph_mean"].shape == (4, 3)
@@ -132,3 +144,16 @@ def test_refuses_non_runs(logdir: Path) -> None:
     (logdir / "half" / "config.yaml").write_text("{}")
     with pytest.raises(FigureError, match=r"missing metrics\.csv"):
         load_runs(logdir)
+
+
+def test_skewness_target_comes_from_each_runs_config(tmp_path: Path) -> None:
+    root = tmp_path / "runs"
+    write_run(root, "maif-10", "sdhn", 1)
+    write_run(root, "maif-10", "mappo", 1)
+    cfg_file = root / "maif-10__sdhn__1" / "config.yaml"
+    cfg = yaml.safe_load(cfg_file.read_text())
+    cfg["sdhn"]["lambda_sk"] = 0.25
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    by_method = {r.method: r for r in load_runs(root)}
+    assert lambda_sk(by_method["sdhn"]) == 0.25, "lambda_Sk must be read from the run's config"
+    assert "skewness.png" in {p.name for p in make_figures(root, tmp_path / "fig")}

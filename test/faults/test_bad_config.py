@@ -25,8 +25,8 @@ def node_cmd(package: str, exe: str, ns: str, *params: str) -> list[str]:
 def corrupt_checkpoint(run_dir: Path) -> Path:
     d = run_dir / "checkpoints"
     d.mkdir(parents=True)
-    (d / "version_000003.safetensors").write_bytes(b"\x00" * 64)
-    (d / "version_000003.json").write_text(json.dumps({"format": "sdhn-checkpoint/1",
+    (d / "step_000000000384.safetensors").write_bytes(b"\x00" * 64)
+    (d / "step_000000000384.json").write_text(json.dumps({"format": "sdhn-checkpoint/1",
                                                        "tensors_sha256": "0" * 64}))
     return run_dir
 

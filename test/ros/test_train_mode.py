@@ -5,6 +5,7 @@ and replay's summary recomputed from the recorded state equals the simulator's."
 
 from __future__ import annotations
 
+import json
 import re
 import time
 from collections.abc import Iterator
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from sdhn_sim.recording import read_recording, summaries_from_messages, summaries_from_states
+from sdhn_train.checkpoint import latest_checkpoint
 
 from .deploy_helpers import TEAM_NS, Seen, actor_cmd, observer, sim_cmd
 from .processes import ROS2, NodeProcess, node_processes
@@ -85,19 +87,23 @@ def test_trainer_publishes_new_versions_and_actors_switch(train_run: TrainRun) -
           + "\n".join(line for line in out.splitlines() if "status:" in line)[-600:])
     # checkpoints: the newest one is the newest published version
     last = max(int(m) for m in re.findall(r"update: version=(\d+)", out))
-    assert (train_run.run_dir / "checkpoints" / f"version_{last:06d}.json").is_file()
+    newest = latest_checkpoint(train_run.run_dir)
+    assert newest is not None
+    assert json.loads(newest.with_suffix(".json").read_text())["version"] == last
     assert "Traceback" not in out
 
 
 def test_resume_continues_from_the_last_version(train_run: TrainRun, tmp_path: Path) -> None:
     out = train_run.trainer.output
     last = max(int(m) for m in re.findall(r"update: version=(\d+)", out))
+    newest = latest_checkpoint(train_run.run_dir)
+    assert newest is not None
     config = tmp_path / "trainer.yaml"
     config.write_text("log:\n  tensorboard: false\n")
     with node_processes(trainer_cmd(train_run.run_dir, config, resume=True)) as (trainer,):
         assert trainer.wait_for_line("ready", timeout=40), trainer.output
         assert trainer.stop(timeout=8) == 0, trainer.output
-    assert f"version={last} (resumed from version_{last:06d})" in trainer.output, trainer.output
+    assert f"version={last} (resumed from {newest.name})" in trainer.output, trainer.output
 
 
 def test_recording_of_the_train_run_holds_every_step(train_run: TrainRun) -> None:

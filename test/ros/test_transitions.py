@@ -228,9 +228,10 @@ def test_assembled_rollout_trains_the_shared_learner(tmp_path: object) -> None:
 
     from sdhn_policy.weights import decode_weights
     from sdhn_sim.envs import make_env
-    from sdhn_train.algorithms import EnvInfo
+    from sdhn_train.checkpoint import latest_checkpoint
     from sdhn_train.config import Config
-    from sdhn_train.remote_learner import RemoteLearner, latest_checkpoint
+    from sdhn_train.envinfo import EnvInfo
+    from sdhn_train.stream_learner import StreamLearner
 
     env = make_env("maif-tiny", num_envs=1, seed=3)
     info = EnvInfo.of(env)
@@ -238,7 +239,7 @@ def test_assembled_rollout_trains_the_shared_learner(tmp_path: object) -> None:
     cfg.env.name, cfg.env.num_envs, cfg.ppo.num_minibatches, cfg.ppo.epochs = "maif-tiny", 1, 1, 1
     cfg.log.tensorboard = False
     run_dir = Path(str(tmp_path))
-    learner = RemoteLearner(cfg, info, run_dir)
+    learner = StreamLearner(cfg, info, run_dir)
     asm = TransitionAssembler(info.num_robots, info.obs_size, info.state_size, info.num_actions,
                               rollout_steps=8, max_steps=env.max_steps)
     obs, state = env.reset()
@@ -264,10 +265,10 @@ def test_assembled_rollout_trains_the_shared_learner(tmp_path: object) -> None:
     g = result.hypergraphs[0]
     assert g.p_h.shape == (info.num_robots, cfg.sdhn.num_hyperedges)
     assert set(np.unique(g.incidence)) <= {0, 1} and -1 < g.skewness < 1
-    assert latest_checkpoint(run_dir) == run_dir / "checkpoints" / "version_000002"
+    assert latest_checkpoint(run_dir) == run_dir / "checkpoints" / "step_000000000008"
     # resume: a fresh learner picks up version 2 and the same actor weights (compared as
     # tensors: safetensors writes its metadata map in no fixed order, so bytes may differ)
-    again = RemoteLearner(cfg, info, run_dir)
+    again = StreamLearner(cfg, info, run_dir)
     again.resume_latest()
     assert again.version == 2
     _, want = decode_weights(result.weights)

@@ -1,14 +1,20 @@
 """Checkpoints: one safetensors file (every tensor) + one JSON file (everything else), atomic.
 
-Holds actor, critic, target critic, both Adam states, torch/NumPy RNG states, the collector's
-live state (current obs, hidden states) and a snapshot of the environments, so a resumed run
-continues exactly like an uninterrupted one. Never pickles.
+Holds the learner's state (``Learner.state_dict``: networks, optimisers, its NumPy generator,
+replay buffer where it has one), torch's and Python's RNG states, and what the trainer adds (the
+collector's live state and a snapshot of the environments), so a resumed run continues exactly
+like an uninterrupted one. Never pickles.
+
+One naming scheme for the in-process trainer and the ROS trainer node:
+``<run_dir>/checkpoints/step_<team env-steps learned from, 12 digits>.{safetensors,json}``; the
+JSON is written last, so a checkpoint whose JSON exists is complete (``latest_checkpoint``).
 """
 
 from __future__ import annotations
 
 import json
 import random
+import re
 from pathlib import Path
 from typing import Any
 
@@ -18,8 +24,11 @@ from safetensors.numpy import load as st_load
 from safetensors.numpy import save as st_save
 
 from sdhn_policy.weights import atomic_write_bytes, sha256_hex
+from sdhn_train.learners.base import Arrays, JsonDict, Learner
 
 CHECKPOINT_FORMAT = "sdhn-checkpoint/1"
+CHECKPOINT_DIR = "checkpoints"
+_NAME = re.compile(r"^step_(\d{12,})\.json$")
 
 
 class CheckpointError(ValueError):
@@ -138,35 +147,88 @@ def load_module(prefix: str, module: torch.nn.Module, arrays: dict[str, np.ndarr
     module.load_state_dict(sd, strict=True)
 
 
-def learner_state(learner: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """A learner's networks, optimisers and random generators as arrays plus JSON metadata.
-
-    Shared by the in-process trainer and the ROS trainer node, which add their own fields."""
-    arrays: dict[str, np.ndarray] = {}
-    for prefix, module in (("actor", learner.actor), ("critic", learner.critic),
-                           ("target", learner.target_critic)):
+def modules_state(modules: dict[str, torch.nn.Module],
+                  optimizers: dict[str, torch.optim.Optimizer]) -> tuple[Arrays, JsonDict]:
+    """Networks (``<prefix>.<parameter>``) and optimisers (``<prefix>.<param id>.<key>``) as
+    arrays, with the optimisers' scalars in ``meta["optimizers"]``."""
+    arrays: Arrays = {}
+    for prefix, module in modules.items():
         arrays.update(module_arrays(prefix, module))
     opt_meta = {}
-    for prefix, opt in (("optim.actor", learner.actor_opt), ("optim.critic", learner.critic_opt)):
+    for prefix, opt in optimizers.items():
         a, m = optimizer_to_arrays(prefix, opt)
         arrays.update(a)
         opt_meta[prefix] = m
+    return arrays, {"optimizers": opt_meta}
+
+
+def load_modules_state(modules: dict[str, torch.nn.Module],
+                       optimizers: dict[str, torch.optim.Optimizer], arrays: Arrays,
+                       meta: JsonDict) -> None:
+    """Inverse of :func:`modules_state`."""
+    for prefix, module in modules.items():
+        load_module(prefix, module, arrays)
+    for prefix, opt in optimizers.items():
+        optimizer_from_arrays(prefix, opt, arrays, meta["optimizers"][prefix])
+
+
+def learner_state(learner: Learner) -> tuple[Arrays, JsonDict]:
+    """The learner's state plus torch's and Python's global RNG states.
+
+    Shared by the in-process trainer and the ROS trainer node, which add their own fields."""
+    arrays, meta = learner.state_dict()
     arrays["rng.torch"] = torch.get_rng_state().numpy()
-    meta = {"num_updates": learner.num_updates, "optimizers": opt_meta,
-            "rng_numpy": learner.rng.bit_generator.state,
-            "rng_python": list(random.getstate()[1])}
+    meta["rng_python"] = list(random.getstate()[1])
     return arrays, meta
 
 
-def restore_learner_state(learner: Any, arrays: dict[str, np.ndarray],
-                          meta: dict[str, Any]) -> None:
+def restore_learner_state(learner: Learner, arrays: Arrays, meta: JsonDict) -> None:
     """Inverse of :func:`learner_state`."""
-    for prefix, module in (("actor", learner.actor), ("critic", learner.critic),
-                           ("target", learner.target_critic)):
-        load_module(prefix, module, arrays)
-    for prefix, opt in (("optim.actor", learner.actor_opt), ("optim.critic", learner.critic_opt)):
-        optimizer_from_arrays(prefix, opt, arrays, meta["optimizers"][prefix])
+    learner.load_state_dict(arrays, meta)
     torch.set_rng_state(torch.from_numpy(arrays["rng.torch"].copy()))
-    learner.rng.bit_generator.state = meta["rng_numpy"]
     random.setstate((3, tuple(meta["rng_python"]), None))
-    learner.num_updates = int(meta["num_updates"])
+
+
+# --- names ------------------------------------------------------------------------------------
+
+
+def checkpoint_path(run_dir: Path, step: int) -> Path:
+    """The checkpoint stem of ``run_dir`` after ``step`` team env-steps."""
+    return run_dir / CHECKPOINT_DIR / f"step_{step:012d}"
+
+
+def checkpoints(run_dir: Path) -> list[Path]:
+    """Every complete checkpoint stem under ``run_dir`` (or in it, if it is the checkpoints
+    directory itself), oldest first."""
+    found = []
+    for directory in (run_dir / CHECKPOINT_DIR, run_dir):
+        if directory.is_dir():
+            for p in directory.iterdir():
+                m = _NAME.match(p.name)
+                if m and p.with_suffix(".safetensors").is_file():
+                    found.append((int(m.group(1)), p.with_suffix("")))
+        if found:
+            break
+    return [p for _, p in sorted(found)]
+
+
+def latest_checkpoint(run_dir: Path) -> Path | None:
+    """The newest complete checkpoint under ``run_dir``, or None."""
+    found = checkpoints(run_dir)
+    return found[-1] if found else None
+
+
+def resolve_checkpoint(path: Path) -> Path | None:
+    """A checkpoint stem from a stem, a .json/.safetensors file, or a run directory (its newest
+    checkpoint; None if it has none)."""
+    if path.is_dir():
+        return latest_checkpoint(path)
+    return path.with_suffix("") if path.suffix in (".json", ".safetensors") else path
+
+
+def prune_checkpoints(run_dir: Path, keep: int) -> None:
+    """Delete all but the newest ``keep`` checkpoints (each JSON first: a checkpoint without it
+    is never used)."""
+    for old in checkpoints(run_dir)[:-keep]:
+        old.with_suffix(".json").unlink(missing_ok=True)
+        old.with_suffix(".safetensors").unlink(missing_ok=True)

@@ -2,7 +2,7 @@
 
     train --env maif-10 --algo sdhn --seed 1 --total-steps 2000000
     train --config exp.yaml --set ppo.lr=3e-4 --set sdhn.skew_loss=false
-    train --resume runs/<run>/checkpoints/step_000000409600
+    train --resume runs/<run>/checkpoints/step_000000409600   (or the run directory)
 
 Exit codes: 0 done, 2 invalid configuration, 3 training stopped on a non-finite loss.
 """
@@ -13,6 +13,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from sdhn_sim.envs.registry import env_names
+from sdhn_train.algorithms.registry import ALGO_NAMES
+from sdhn_train.checkpoint import resolve_checkpoint
 from sdhn_train.config import (
     Config,
     ConfigError,
@@ -31,14 +34,17 @@ SHORTCUTS = {  # --flag -> config field
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="train", description="Train SDHN or MAPPO in-process on vectorised environments.",
+        prog="train", description="Train an algorithm in-process on vectorised environments.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="config fields (--set section.field=value):\n" + describe())
     p.add_argument("--config", type=Path, help="YAML file with {section: {field: value}}")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                    help="override one config field (repeatable)")
+    choices = {"env": env_names(), "algo": list(ALGO_NAMES)}
     for flag, target in SHORTCUTS.items():
-        p.add_argument(f"--{flag.replace('_', '-')}", dest=flag, help=f"same as --set {target}=...")
+        allowed = f" ({', '.join(choices[flag])})" if flag in choices else ""
+        p.add_argument(f"--{flag.replace('_', '-')}", dest=flag,
+                       help=f"same as --set {target}=...{allowed}")
     p.add_argument("--resume", type=Path, help="checkpoint path (without suffix) or run directory")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--print-config", action="store_true", help="print the final config and exit")
@@ -66,13 +72,10 @@ def config_from_args(args: argparse.Namespace) -> Config:
 
 def latest_checkpoint(path: Path) -> Path:
     """A checkpoint stem from a stem, a .json/.safetensors file, or a run directory (latest)."""
-    if path.is_dir():
-        found = (sorted((path / "checkpoints").glob("step_*.json"))
-                 or sorted(path.glob("step_*.json")))
-        if not found:
-            raise ConfigError(f"--resume {path}: no checkpoints in that directory")
-        return found[-1].with_suffix("")
-    return path.with_suffix("") if path.suffix in (".json", ".safetensors") else path
+    found = resolve_checkpoint(path)
+    if found is None:
+        raise ConfigError(f"--resume {path}: no checkpoints in that directory")
+    return found
 
 
 def main(argv: list[str] | None = None) -> int:

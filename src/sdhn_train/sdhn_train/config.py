@@ -1,8 +1,14 @@
 """Typed training configuration: one dataclass per concern, a help string per field.
 
-Load order: defaults <- YAML (``--config``) <- CLI shortcuts (``--env`` ...) <- ``--set a.b=v``.
-``validate`` runs before anything starts and raises ConfigError naming the field and the allowed
-values.
+The shared sections (``env``, ``algo``, ``actor``, ``train``, ``eval``, ``log``) live in
+``sdhn_train.sections``, the PPO learner's (``ppo``) beside it, and one section per algorithm
+(``sdhn``, ``mappo``, ``qmix``, ``dicg``, ``hgcn_mix``) in that algorithm's module, collected from
+the algorithm registry. ``cfg.section(SDHNConfig)`` is the typed way to one of them (``cfg.sdhn``
+also works, untyped).
+
+Load order: defaults <- YAML (``--config``) <- CLI shortcuts (``--env`` ...) <- ``--set a.b=v``,
+all through ``sdhn_sim.overrides``. ``validate`` runs before anything starts and raises
+ConfigError naming the field and the allowed values.
 """
 
 from __future__ import annotations
@@ -10,144 +16,35 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
 
 from sdhn_sim import overrides
-
-ENV_NAMES: tuple[str, ...] = (
-    "maif-tiny", "maif-10", "maif-16", "maif-20", "rware-3", "rware-6", "rware-9",
+from sdhn_sim.envs.registry import env_names
+from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS
+from sdhn_train.learners.ppo import PPOConfig
+from sdhn_train.sections import (
+    ActorConfig,
+    AlgoConfig,
+    ConfigError,
+    EnvConfig,
+    EvalConfig,
+    LogConfig,
+    Section,
+    TrainConfig,
+    need,
 )
-ALGO_NAMES: tuple[str, ...] = ("sdhn", "mappo", "qmix", "dicg", "hgcn_mix")
-NOISES: tuple[str, ...] = ("logistic", "gumbel_paper")
+
+__all__ = ["Config", "ConfigError", "apply_dict", "describe", "load_yaml", "set_field",
+           "validate"]
+
+SectionT = TypeVar("SectionT")
+_BEFORE = ("env", "algo", "actor", "ppo")  # shared sections written before the algorithms'
 
 
-class ConfigError(ValueError):
-    """Invalid configuration; the message names the field and the allowed values."""
-
-
-def opt(default: Any, help: str) -> Any:
-    """A dataclass field with an immutable default and its help string."""
-    return field(default=default, metadata={"help": help})
-
-
-@dataclass
-class EnvConfig:
-    name: str = opt("maif-10", f"environment, one of {', '.join(ENV_NAMES)}")
-    num_envs: int = opt(32, "B: environments stepped together in one process")
-    max_steps: int | None = opt(None, "episode step limit; null = the environment's (500 MAIF)")
-
-
-@dataclass
-class AlgoConfig:
-    name: str = opt("sdhn", f"algorithm, one of {', '.join(ALGO_NAMES)} (sdhn/mappo/dicg: "
-                            "PPO, only the critic differs; qmix/hgcn_mix: value mixing)")
-
-
-@dataclass
-class ActorConfig:
-    hidden_sizes: list[int] = field(default_factory=lambda: [64],
-                                    metadata={"help": "MLP encoder widths before the GRU"})
-    gru_hidden: int = opt(64, "GRU hidden size")
-    use_robot_id: bool = opt(False, "append a one-hot robot id to each local observation")
-
-
-@dataclass
-class PPOConfig:
-    rollout_len: int = opt(128, "T: steps per environment per rollout")
-    lr: float | None = opt(None, "actor Adam learning rate; null = algorithm default "
-                                 "(sdhn 6e-4, mappo 3e-4)")
-    critic_lr: float | None = opt(None, "critic Adam learning rate; null = same as lr")
-    gamma: float = opt(0.99, "discount factor")
-    gae_lambda: float = opt(0.95, "GAE lambda")
-    clip: float = opt(0.2, "PPO ratio clip epsilon")
-    epochs: int = opt(4, "passes over each rollout")
-    num_minibatches: int = opt(4, "minibatches per epoch, split over environments (<= B)")
-    entropy_coef: float = opt(0.01, "entropy bonus weight")
-    max_grad_norm: float = opt(10.0, "gradient-norm clip for actor and critic")
-    normalize_advantages: bool = opt(True, "standardise advantages per minibatch")
-    target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
-                                         "null = algorithm default (sdhn 0.01, mappo 1 = none)")
-    reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
-
-
-@dataclass
-class SDHNConfig:
-    num_hyperedges: int = opt(10, "M: hyperedges in the generated hypergraph")
-    generator_hidden: int = opt(64, "f_g GRU hidden size")
-    generator_layers: int = opt(3, "f_g GRU layers (paper: 3)")
-    hgcn_hidden: int = opt(64, "HGCN feature size")
-    hgcn_layers: int = opt(2, "HGCN layers (paper: 2)")
-    state_hidden: int = opt(64, "global-state encoder size of the value head")
-    tau: float = opt(1.0, "Binary Concrete temperature")
-    noise: str = opt("logistic", f"Binary Concrete noise, one of {', '.join(NOISES)}")
-    lambda_sk: float = opt(-0.6, "target skewness lambda_Sk, in (-1, 1)")
-    lambda_cb: float = opt(1.0, "weight lambda_CB of L_Sk in the critic loss, >= 0")
-    skew_loss: bool = opt(True, "add lambda_CB * L_Sk (false = ablation 'w/o L_Sk')")
-    stochastic_hyperedges: bool = opt(True, "sample H (false = ablation 'w/o SHR', H=1{P_H>=0.5})")
-
-
-@dataclass
-class MAPPOConfig:
-    critic_hidden: list[int] = field(default_factory=lambda: [64, 64],
-                                     metadata={"help": "MLP critic widths"})
-
-
-@dataclass
-class QMIXConfig:
-    """QMIX and HGCN-MIX (off-policy value mixing). They also use ppo.lr (null = 5e-4),
-    ppo.gamma, ppo.rollout_len, ppo.reward_scale and ppo.max_grad_norm."""
-
-    buffer_episodes: int = opt(500, "episode replay buffer capacity (whole episodes)")
-    batch_episodes: int = opt(32, "episodes per gradient step")
-    updates_per_rollout: int = opt(2, "gradient steps after each collected rollout")
-    learning_starts: int = opt(2, "episodes in the buffer before the first gradient step")
-    target_update_interval: int = opt(100, "gradient steps between hard target-network copies")
-    double_q: bool = opt(True, "double Q-learning targets (argmax by the online agent net)")
-    epsilon_start: float = opt(1.0, "epsilon-greedy exploration at step 0")
-    epsilon_finish: float = opt(0.05, "epsilon after the anneal")
-    epsilon_anneal_steps: int = opt(50_000, "team env-steps of the linear epsilon anneal")
-    mixer_embed: int = opt(32, "mixing network embedding size")
-    hypernet_hidden: int = opt(64, "hypernetwork hidden size")
-
-
-@dataclass
-class DICGConfig:
-    embed: int = opt(64, "agent embedding size (attention and GCN width)")
-    gcn_layers: int = opt(2, "GCN message-passing rounds over the soft adjacency")
-    state_hidden: int = opt(64, "global-state encoder size of the value head")
-
-
-@dataclass
-class HGCNMixConfig:
-    num_hyperedges: int = opt(10, "M: hyperedges of the learned deterministic hypergraph")
-    hgcn_hidden: int = opt(64, "HGCN feature size")
-    hgcn_layers: int = opt(2, "HGCN layers")
-
-
-@dataclass
-class TrainConfig:
-    total_steps: int = opt(1_000_000, "team env-steps to train for (summed over B envs)")
-    seed: int = opt(1, "seed of everything (torch, numpy, environments)")
-    deterministic: bool = opt(False, "torch deterministic algorithms")
-    threads: int = opt(1, "torch intra-op threads")
-
-
-@dataclass
-class EvalConfig:
-    interval: int = opt(50_000, "team env-steps between greedy evaluations (0 = never)")
-    episodes: int = opt(16, "fixed evaluation instances (one episode each)")
-    seed: int = opt(12345, "seed of the fixed evaluation instances")
-
-
-@dataclass
-class LogConfig:
-    root: str = opt("runs", "directory holding run directories")
-    run_name: str | None = opt(None, "run directory name; null = <env>__<algo>__<seed>__<time>")
-    checkpoint_interval: int = opt(200_000, "team env-steps between checkpoints (0 = end only)")
-    progress: bool = opt(True, "show a progress bar")
-    tensorboard: bool = opt(True, "write TensorBoard scalars")
+def _algorithm_sections() -> dict[str, Section]:
+    return {a.name: a.config() for a in ALGORITHMS}
 
 
 @dataclass
@@ -156,17 +53,36 @@ class Config:
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     actor: ActorConfig = field(default_factory=ActorConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
-    sdhn: SDHNConfig = field(default_factory=SDHNConfig)
-    mappo: MAPPOConfig = field(default_factory=MAPPOConfig)
-    qmix: QMIXConfig = field(default_factory=QMIXConfig)
-    dicg: DICGConfig = field(default_factory=DICGConfig)
-    hgcn_mix: HGCNMixConfig = field(default_factory=HGCNMixConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     log: LogConfig = field(default_factory=LogConfig)
+    algorithms: dict[str, Section] = field(default_factory=_algorithm_sections, repr=False)
+
+    def section(self, cls: type[SectionT]) -> SectionT:
+        """The algorithm section of type ``cls`` (e.g. ``cfg.section(SDHNConfig)``)."""
+        for s in self.algorithms.values():
+            if type(s) is cls and isinstance(s, cls):
+                return s
+        raise KeyError(f"no config section of type {cls.__name__}")
+
+    def __getattr__(self, name: str) -> object:
+        """``cfg.sdhn`` for an algorithm's section (untyped; code uses ``section``)."""
+        sections = self.__dict__.get("algorithms", {})
+        if name in sections:
+            return sections[name]
+        raise AttributeError(f"{type(self).__name__} has no attribute or section {name!r}")
+
+    def sections(self) -> dict[str, object]:
+        """Every section by its name, in the order they are written."""
+        shared = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                  if f.name != "algorithms"}
+        first = {k: v for k, v in shared.items() if k in _BEFORE}
+        rest = {k: v for k, v in shared.items() if k not in _BEFORE}
+        return {**first, **self.algorithms, **rest}
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        return {name: dataclasses.asdict(s) for name, s in self.sections().items()
+                if dataclasses.is_dataclass(s) and not isinstance(s, type)}
 
 
 # --- building from YAML / overrides -----------------------------------------------------------
@@ -174,17 +90,17 @@ class Config:
 
 def set_field(cfg: Config, dotted: str, value: Any) -> None:
     """Set ``section.field`` (e.g. ``ppo.lr``) with type conversion; ConfigError if unknown."""
+    sections = cfg.sections()
     parts = dotted.split(".")
     if len(parts) != 2:
         raise ConfigError(f"{dotted}: expected <section>.<field>, sections: "
-                          f"{', '.join(f.name for f in dataclasses.fields(Config))}")
+                          f"{', '.join(sections)}")
     section_name, name = parts
-    sections = {f.name: f for f in dataclasses.fields(Config)}
     if section_name not in sections:
         raise ConfigError(f"{dotted}: unknown section {section_name!r}; allowed: "
                           f"{', '.join(sections)}")
     try:
-        overrides.set_field(getattr(cfg, section_name), name, value, prefix=f"{section_name}.")
+        overrides.set_field(sections[section_name], name, value, prefix=f"{section_name}.")
     except overrides.OverrideError as e:
         raise ConfigError(str(e)) from None
 
@@ -206,39 +122,19 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
 
 def validate(cfg: Config) -> None:
     """Reject bad values before anything starts (ConfigError naming field and allowed values)."""
-
-    def need(ok: bool, path: str, allowed: str, value: Any) -> None:
-        if not ok:
-            raise ConfigError(f"{path} = {value!r} is invalid; allowed: {allowed}")
-
-    need(cfg.env.name in ENV_NAMES, "env.name", ", ".join(ENV_NAMES), cfg.env.name)
+    envs = env_names()
+    need(cfg.env.name in envs, "env.name", ", ".join(envs), cfg.env.name)
     need(cfg.algo.name in ALGO_NAMES, "algo.name", ", ".join(ALGO_NAMES), cfg.algo.name)
-    need(cfg.sdhn.noise in NOISES, "sdhn.noise", ", ".join(NOISES), cfg.sdhn.noise)
     positive = {
         "env.num_envs": cfg.env.num_envs, "train.total_steps": cfg.train.total_steps,
-        "train.threads": cfg.train.threads, "ppo.rollout_len": cfg.ppo.rollout_len,
-        "ppo.epochs": cfg.ppo.epochs, "ppo.num_minibatches": cfg.ppo.num_minibatches,
-        "sdhn.num_hyperedges": cfg.sdhn.num_hyperedges,
-        "sdhn.generator_hidden": cfg.sdhn.generator_hidden,
-        "sdhn.generator_layers": cfg.sdhn.generator_layers,
-        "sdhn.hgcn_hidden": cfg.sdhn.hgcn_hidden,
-        "sdhn.hgcn_layers": cfg.sdhn.hgcn_layers, "sdhn.state_hidden": cfg.sdhn.state_hidden,
-        "actor.gru_hidden": cfg.actor.gru_hidden, "eval.episodes": cfg.eval.episodes,
-        "qmix.buffer_episodes": cfg.qmix.buffer_episodes,
-        "qmix.batch_episodes": cfg.qmix.batch_episodes,
-        "qmix.updates_per_rollout": cfg.qmix.updates_per_rollout,
-        "qmix.learning_starts": cfg.qmix.learning_starts,
-        "qmix.target_update_interval": cfg.qmix.target_update_interval,
-        "qmix.epsilon_anneal_steps": cfg.qmix.epsilon_anneal_steps,
-        "qmix.mixer_embed": cfg.qmix.mixer_embed, "qmix.hypernet_hidden": cfg.qmix.hypernet_hidden,
-        "dicg.embed": cfg.dicg.embed, "dicg.gcn_layers": cfg.dicg.gcn_layers,
-        "dicg.state_hidden": cfg.dicg.state_hidden,
-        "hgcn_mix.num_hyperedges": cfg.hgcn_mix.num_hyperedges,
-        "hgcn_mix.hgcn_hidden": cfg.hgcn_mix.hgcn_hidden,
-        "hgcn_mix.hgcn_layers": cfg.hgcn_mix.hgcn_layers,
+        "train.threads": cfg.train.threads, "actor.gru_hidden": cfg.actor.gru_hidden,
+        "eval.episodes": cfg.eval.episodes,
     }
     for path, v in positive.items():
         need(v >= 1, path, "an integer >= 1", v)
+    cfg.ppo.validate()
+    for section in cfg.algorithms.values():
+        section.validate()
     for path, v in {"eval.interval": cfg.eval.interval,
                     "log.checkpoint_interval": cfg.log.checkpoint_interval}.items():
         need(v >= 0, path, "an integer >= 0 (0 = never / end only)", v)
@@ -248,35 +144,15 @@ def validate(cfg: Config) -> None:
          f"1..env.num_envs ({cfg.env.num_envs})", cfg.ppo.num_minibatches)
     need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",
          cfg.actor.hidden_sizes)
-    need(len(cfg.mappo.critic_hidden) >= 1 and all(h >= 1 for h in cfg.mappo.critic_hidden),
-         "mappo.critic_hidden", "one or more widths >= 1", cfg.mappo.critic_hidden)
-    for path, lr in {"ppo.lr": cfg.ppo.lr, "ppo.critic_lr": cfg.ppo.critic_lr}.items():
-        need(lr is None or lr > 0, path, "a number > 0 or null", lr)
-    need(0.0 <= cfg.ppo.gamma <= 1.0, "ppo.gamma", "[0, 1]", cfg.ppo.gamma)
-    need(0.0 <= cfg.ppo.gae_lambda <= 1.0, "ppo.gae_lambda", "[0, 1]", cfg.ppo.gae_lambda)
-    need(0.0 < cfg.ppo.clip < 1.0, "ppo.clip", "(0, 1)", cfg.ppo.clip)
-    need(cfg.ppo.entropy_coef >= 0, "ppo.entropy_coef", ">= 0", cfg.ppo.entropy_coef)
-    need(cfg.ppo.max_grad_norm > 0, "ppo.max_grad_norm", "> 0", cfg.ppo.max_grad_norm)
-    need(cfg.ppo.reward_scale > 0, "ppo.reward_scale", "> 0", cfg.ppo.reward_scale)
-    need(cfg.ppo.target_tau is None or 0.0 < cfg.ppo.target_tau <= 1.0, "ppo.target_tau",
-         "(0, 1] or null", cfg.ppo.target_tau)
-    need(-1.0 < cfg.sdhn.lambda_sk < 1.0, "sdhn.lambda_sk", "(-1, 1) (the range of Sk)",
-         cfg.sdhn.lambda_sk)
-    need(cfg.sdhn.lambda_cb >= 0.0, "sdhn.lambda_cb", ">= 0", cfg.sdhn.lambda_cb)
-    need(cfg.sdhn.tau > 0.0, "sdhn.tau", "> 0", cfg.sdhn.tau)
-    for path, eps in {"qmix.epsilon_start": cfg.qmix.epsilon_start,
-                      "qmix.epsilon_finish": cfg.qmix.epsilon_finish}.items():
-        need(0.0 <= eps <= 1.0, path, "[0, 1]", eps)
-    need(cfg.qmix.batch_episodes <= cfg.qmix.buffer_episodes, "qmix.batch_episodes",
-         f"1..qmix.buffer_episodes ({cfg.qmix.buffer_episodes})", cfg.qmix.batch_episodes)
 
 
 def describe() -> str:
     """Every field with its default and help string (for ``--help``)."""
     lines = []
-    for sec in dataclasses.fields(Config):
-        section = getattr(Config(), sec.name)
+    for name, section in Config().sections().items():
+        if not dataclasses.is_dataclass(section):
+            continue
         for f in dataclasses.fields(section):
-            lines.append(f"  {sec.name}.{f.name} = {getattr(section, f.name)!r}: "
+            lines.append(f"  {name}.{f.name} = {getattr(section, f.name)!r}: "
                          f"{f.metadata.get('help', '')}")
     return "\n".join(lines)

@@ -1,6 +1,6 @@
 """The rollout: plain NumPy arrays handed to ``learner.update``.
 
-Filled either by the vectorised in-process collector (``sdhn_train.runner``) or by a ROS trainer
+Filled either by the vectorised in-process collector (``sdhn_train.collector``) or by a ROS trainer
 node assembling messages (B = 1). Time-major: T steps x B environments x N robots.
 
 Conventions

@@ -1,13 +1,13 @@
-"""In-process trainer: vectorised rollouts -> shared PPO update -> logs, evaluation, checkpoints.
+"""In-process trainer: vectorised rollouts -> the algorithm's learner -> logs, evaluation,
+checkpoints.
 
-Reads top to bottom in ``Trainer.run``. Seeding happens once, in ``seed_everything``.
+Reads top to bottom in ``Trainer.run``. Seeding happens once, in ``runs.seed_everything``. Only
+the ``Learner`` protocol is used: the same loop runs every algorithm of the registry.
 """
 
 from __future__ import annotations
 
-import csv
 import json
-import random
 import sys
 import time
 from collections.abc import Callable
@@ -22,12 +22,13 @@ import yaml
 from sdhn_policy.weights import save_actor_file
 from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
 from sdhn_train import checkpoint as ckpt
-from sdhn_train.algorithms import EnvInfo, build_learner
+from sdhn_train.algorithms.registry import get_algorithm
+from sdhn_train.collector import RolloutCollector, evaluate_greedy
 from sdhn_train.config import Config
-from sdhn_train.figures import write_ph_snapshot
-from sdhn_train.ppo import NonFiniteLossError
+from sdhn_train.envinfo import EnvInfo
+from sdhn_train.learners.base import Learner, NonFiniteLossError
 from sdhn_train.rollout import Rollout
-from sdhn_train.runner import RolloutCollector, evaluate_greedy
+from sdhn_train.runs import MetricsLog, episode_metrics, save_ph_snapshot, seed_everything
 
 EnvFactory = Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
 
@@ -36,58 +37,6 @@ def default_env_factory(name: str, num_envs: int, seed: int, **overrides: Any) -
     from sdhn_sim.envs import make_env
 
     return make_env(name, num_envs=num_envs, seed=seed, **overrides)
-
-
-def seed_everything(seed: int, deterministic: bool, threads: int) -> np.random.Generator:
-    """The one place that seeds: Python, NumPy (returned generator), torch."""
-    random.seed(seed)
-    torch.manual_seed(seed)
-    torch.set_num_threads(threads)
-    torch.use_deterministic_algorithms(deterministic)
-    return np.random.default_rng(seed)
-
-
-def episode_metrics(prefix: str, episodes: list[EpisodeStats]) -> dict[str, float]:
-    if not episodes:
-        return {}
-    out = {
-        f"{prefix}/episodic_return": float(np.mean([e.episode_return for e in episodes])),
-        f"{prefix}/episode_length": float(np.mean([e.length for e in episodes])),
-        f"{prefix}/success_rate": float(np.mean([e.success for e in episodes])),
-        f"{prefix}/collisions": float(np.mean([e.collisions for e in episodes])),
-    }
-    done = [e.makespan for e in episodes if e.makespan is not None]
-    if done:  # makespan of completed episodes only (NC episodes have none)
-        out[f"{prefix}/makespan"] = float(np.mean(done))
-    return out
-
-
-class MetricsLog:
-    """CSV (long format: step, wall_time, tag, value) + optional TensorBoard."""
-
-    def __init__(self, run_dir: Path, tensorboard: bool) -> None:
-        self._f: TextIO = open(run_dir / "metrics.csv", "a", newline="")  # noqa: SIM115
-        self._csv = csv.writer(self._f)
-        if self._f.tell() == 0:
-            self._csv.writerow(["step", "wall_time", "tag", "value"])
-        self._tb: Any = None
-        if tensorboard:
-            from torch.utils.tensorboard import SummaryWriter
-
-            self._tb = SummaryWriter(str(run_dir))
-
-    def write(self, step: int, metrics: dict[str, float]) -> None:
-        now = time.time()
-        for tag, value in metrics.items():
-            self._csv.writerow([step, f"{now:.3f}", tag, f"{value:.6g}"])
-            if self._tb is not None:
-                self._tb.add_scalar(tag, value, step)
-        self._f.flush()
-
-    def close(self) -> None:
-        self._f.close()
-        if self._tb is not None:
-            self._tb.close()
 
 
 class Trainer:
@@ -99,13 +48,14 @@ class Trainer:
         self.env = env_factory(cfg.env.name, cfg.env.num_envs, cfg.train.seed, **overrides)
         self.eval_env = (env_factory(cfg.env.name, cfg.eval.episodes, cfg.eval.seed, **overrides)
                          if cfg.eval.interval > 0 else None)
-        self.learner = build_learner(cfg, EnvInfo.of(self.env), self.np_rng)
+        self.learner: Learner = get_algorithm(cfg.algo.name).build_learner(
+            cfg, EnvInfo.of(self.env), self.np_rng)
         self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len,
-                                          getattr(self.learner, "sample_actions", None))
-        self.critic_h = self.learner.critic.initial_state(cfg.env.num_envs).numpy()
+                                          self.learner.sample_actions)
+        self.critic_h = self.learner.initial_critic_hidden(cfg.env.num_envs)
         self.global_step = 0
         self.last_checkpoint: Path | None = None
-        self.last_rollout: Rollout | None = None  # for P_H snapshots (sdhn_train.figures)
+        self.last_rollout: Rollout | None = None  # for P_H snapshots (sdhn_train.analysis)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         name = cfg.log.run_name or f"{cfg.env.name}__{cfg.algo.name}__{cfg.train.seed}__{stamp}"
         self.run_dir = run_dir or Path(cfg.log.root) / name
@@ -113,40 +63,40 @@ class Trainer:
     # -- checkpoints ---------------------------------------------------------------------------
 
     def save_checkpoint(self) -> Path:
-        lr = self.learner
-        arrays, meta = ckpt.learner_state(lr)
+        arrays, meta = ckpt.learner_state(self.learner)
         env_arrays, env_values = ckpt.env_snapshot(self.env)
         arrays.update({f"env.{k}": v for k, v in env_arrays.items()})
         arrays["collector.obs"] = self.collector.obs
         arrays["collector.state"] = self.collector.state
         arrays["collector.actor_h"] = self.collector.actor_h
         arrays["collector.critic_h"] = self.critic_h
-        learner_values: dict[str, Any] = {}
-        if hasattr(lr, "extra_state"):  # QMIX/HGCN-MIX: replay buffer, episodes in progress
-            extra, learner_values = lr.extra_state()
-            arrays.update({f"learner.{k}": v for k, v in extra.items()})
         meta.update(global_step=self.global_step, config=self.cfg.to_dict(),
-                    env_values=env_values, learner=learner_values)
-        path = self.run_dir / "checkpoints" / f"step_{self.global_step:012d}"
+                    env_values=env_values)
+        path = ckpt.checkpoint_path(self.run_dir, self.global_step)
         ckpt.save_checkpoint(path, arrays, meta)
         self.last_checkpoint = path
         return path
 
     def load_checkpoint(self, path: Path) -> None:
         arrays, meta = ckpt.load_checkpoint(path)
-        lr = self.learner
-        ckpt.restore_learner_state(lr, arrays, meta)
+        ckpt.restore_learner_state(self.learner, arrays, meta)
         ckpt.env_restore(self.env, {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
                          meta["env_values"])
         self.collector.obs = arrays["collector.obs"].copy()
         self.collector.state = arrays["collector.state"].copy()
         self.collector.actor_h = arrays["collector.actor_h"].copy()
         self.critic_h = arrays["collector.critic_h"].copy()
-        if hasattr(lr, "load_extra_state"):
-            lr.load_extra_state({k[8:]: v for k, v in arrays.items() if k.startswith("learner.")},
-                                meta.get("learner", {}))
         self.global_step = int(meta["global_step"])
         self.last_checkpoint = path
+
+    def write_ph_snapshot(self) -> Path | None:
+        """P_H arrays of the last rollout for the figures (critics with hypergraphs only); on a
+        forked torch RNG, so a snapshot never changes the training run."""
+        if self.last_rollout is None:
+            return None
+        with torch.random.fork_rng():
+            samples = self.learner.hypergraphs(self.last_rollout)
+        return save_ph_snapshot(self.run_dir, self.global_step, samples)
 
     # -- the loop ------------------------------------------------------------------------------
 
@@ -162,8 +112,7 @@ class Trainer:
         t0 = time.perf_counter()
         metrics = self.learner.update(rollout)
         self.collector.timings.update += time.perf_counter() - t0
-        assert self.learner.next_critic_hidden is not None
-        self.critic_h = self.learner.next_critic_hidden
+        self.critic_h = self.learner.next_critic_hidden()
         self.global_step += rollout.rewards.size
         return metrics, episodes
 
@@ -189,8 +138,7 @@ class Trainer:
                 metrics.update(episode_metrics("charts", episodes))
                 if self.eval_env is not None and self.global_step >= next_eval:
                     metrics.update(self.evaluate())
-                    write_ph_snapshot(self.run_dir, self.global_step, self.learner.critic,
-                                      self.last_rollout)
+                    self.write_ph_snapshot()
                     next_eval = _next_multiple(self.global_step, cfg.eval.interval)
                 log.write(self.global_step, metrics)
                 if cfg.log.checkpoint_interval and self.global_step >= next_ckpt:
@@ -208,7 +156,7 @@ class Trainer:
             return 3
         bar.close()
         self.save_checkpoint()
-        write_ph_snapshot(self.run_dir, self.global_step, self.learner.critic, self.last_rollout)
+        self.write_ph_snapshot()
         final = self.evaluate() if self.eval_env is not None else {}
         if final:
             log.write(self.global_step, final)

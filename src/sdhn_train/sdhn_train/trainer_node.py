@@ -2,15 +2,17 @@
 
 Subscribes to every robot's obs and action and to ``state`` (N from the env), assembles team
 transitions by (episode, step) (``sdhn_train.transitions``), and every ``rollout_steps``
-transitions runs the same PPO update as the in-process trainer on a worker thread
-(``sdhn_train.remote_learner``). After each update: checkpoint (atomic) -> publish weights
+transitions runs the algorithm's learner, the same as the in-process trainer's, on a worker thread
+(``sdhn_train.stream_learner``). After each update: checkpoint (atomic) -> publish weights
 version + 1 (LATCHED) -> publish sampled hypergraphs (SENSOR, SDHN only). Version 1 (or the
 resumed version) is published at start so actors can begin.
 
-Parameters: env, algo, seed, run_dir ("" = runs/<env>__<algo>__<seed>__ros-<time>),
-rollout_steps, config ("" = defaults; YAML of the in-process trainer config), resume,
-team_ns. The YAML's env/algo/seed/rollout length are replaced by the parameters; the ROS stream is
-one environment, so env.num_envs and ppo.num_minibatches are 1.
+Parameters (typed, with descriptors): env and algo (a name of the env / algorithm registry), seed
+(>= 0), run_dir ("" = runs/<env>__<algo>__<seed>__ros-<time>), rollout_steps (>= 2), config
+("" = defaults; YAML of the in-process trainer config), resume, team_ns. The YAML's
+env/algo/seed/rollout length are replaced by the parameters; the ROS stream is one environment,
+so env.num_envs and ppo.num_minibatches are 1. Checking them, merging the config and resuming are
+plain functions below; the constructor only declares.
 """
 
 from __future__ import annotations
@@ -21,11 +23,14 @@ import queue
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
 from rclpy.context import Context
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 
 from sdhn_msgs.msg import (
@@ -37,14 +42,72 @@ from sdhn_msgs.msg import (
     TeamState,
 )
 from sdhn_sim.base_node import ConfigError, run_node
+from sdhn_sim.envs.registry import env_names
 from sdhn_sim.qos import LATCHED, SENSOR, STEP
-from sdhn_train.config import ALGO_NAMES, ENV_NAMES, Config, apply_dict, load_yaml, validate
+from sdhn_train.algorithms.registry import ALGO_NAMES
+from sdhn_train.config import Config, apply_dict, load_yaml, validate
 from sdhn_train.config import ConfigError as TrainConfigError
 from sdhn_train.transitions import AssembledRollout, TransitionAssembler
 
 QUEUE_ROLLOUTS = 4  # rollouts waiting for the learner; beyond that the oldest is dropped
 HYPERGRAPHS_PER_UPDATE = 8
 STATUS_PERIOD_S = 5.0
+
+
+@dataclass(frozen=True)
+class TrainerParams:
+    env: str = "maif-10"
+    algo: str = "sdhn"
+    seed: int = 1
+    run_dir: str = ""
+    rollout_steps: int = 128
+    config: str = ""
+    resume: bool = False
+    team_ns: str = "/sdhn"
+
+
+def _descriptors() -> dict[str, ParameterDescriptor]:
+    def d(text: str, constraints: str = "", low: int | None = None) -> ParameterDescriptor:
+        desc = ParameterDescriptor(description=text, additional_constraints=constraints,
+                                   read_only=True)
+        if low is not None:
+            desc.integer_range = [IntegerRange(from_value=low, to_value=2**31 - 1, step=1)]
+        return desc
+
+    return {
+        "env": d("environment", f"one of {', '.join(env_names())}"),
+        "algo": d("algorithm", f"one of {', '.join(ALGO_NAMES)}"),
+        "seed": d("seed of everything", "an integer >= 0", low=0),
+        "run_dir": d("run directory; '' = runs/<env>__<algo>__<seed>__ros-<time>", "a path"),
+        "rollout_steps": d("team steps per update", "an integer >= 2", low=2),
+        "config": d("YAML of the in-process trainer config; '' = defaults", "a YAML file or ''"),
+        "resume": d("continue from the newest checkpoint in run_dir", "true or false"),
+        "team_ns": d("namespace of the team's topics", "an absolute namespace like /sdhn"),
+    }
+
+
+def declare_parameters(node: Node) -> TrainerParams:
+    """Declare every parameter with its descriptor; a value of the wrong type or out of range is
+    a ConfigError naming the parameter and what is allowed."""
+    defaults = TrainerParams()
+    values: dict[str, Any] = {}
+    for name, desc in _descriptors().items():
+        try:
+            values[name] = node.declare_parameter(name, getattr(defaults, name), desc).value
+        except (InvalidParameterTypeException, InvalidParameterValueException) as e:
+            raise ConfigError(f"{name}: {str(e).splitlines()[0][:160]}; allowed: "
+                              f"{desc.additional_constraints}") from None
+    return TrainerParams(**values)
+
+
+def check_params(p: TrainerParams) -> None:
+    """The checks a descriptor cannot express: registry names and the namespace rule."""
+    if p.env not in env_names():
+        raise ConfigError(f"env: {p.env!r} is unknown; allowed: {', '.join(env_names())}")
+    if p.algo not in ALGO_NAMES:
+        raise ConfigError(f"algo: {p.algo!r} is unknown; allowed: {', '.join(ALGO_NAMES)}")
+    if not p.team_ns.startswith("/"):
+        raise ConfigError(f"team_ns: {p.team_ns!r}; allowed: an absolute namespace like /sdhn")
 
 
 def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path: str) -> Config:
@@ -68,41 +131,42 @@ def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path
     return cfg
 
 
+def open_learner(p: TrainerParams, cfg: Config) -> tuple[Any, Any, Path | None]:
+    """(StreamLearner, env, the checkpoint resumed from or None) for the node's run_dir; a fresh
+    run writes its version-1 checkpoint. ConfigError for a run_dir that cannot be used."""
+    # Heavy imports here, after the parameters are checked, so a bad parameter fails fast.
+    from sdhn_sim.envs import make_env
+    from sdhn_train import checkpoint as ckpt
+    from sdhn_train.envinfo import EnvInfo
+    from sdhn_train.stream_learner import StreamLearner
+
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    run_dir = Path(p.run_dir or f"runs/{p.env}__{p.algo}__{p.seed}__ros-{stamp}")
+    if ckpt.latest_checkpoint(run_dir) is not None and not p.resume:
+        raise ConfigError(f"run_dir: {run_dir} holds checkpoints of an earlier run; "
+                          "allowed: resume:=true, or an empty or new run_dir")
+    env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
+    learner = StreamLearner(cfg, EnvInfo.of(env), run_dir)
+    try:
+        resumed = learner.resume_latest() if p.resume else None
+    except (ckpt.CheckpointError, KeyError, ValueError, RuntimeError) as e:
+        raise ConfigError(f"resume: the newest checkpoint in {run_dir} cannot be loaded "
+                          f"({str(e)[:200]}); allowed: a run_dir with a valid checkpoint, "
+                          "or resume:=false with a new run_dir") from e
+    if resumed is None:
+        learner.save_checkpoint()
+    return learner, env, resumed
+
+
 class TrainerNode(Node):
     def __init__(self, context: Context) -> None:
         super().__init__("trainer", context=context)
-        p = {name: self.declare_parameter(name, default).value for name, default in (
-            ("env", "maif-10"), ("algo", "sdhn"), ("seed", 1), ("run_dir", ""),
-            ("rollout_steps", 128), ("config", ""), ("resume", False), ("team_ns", "/sdhn"))}
-        self._validate(p)
-        cfg = build_config(p["env"], p["algo"], int(p["seed"]), int(p["rollout_steps"]),
-                           p["config"])
-        stamp = time.strftime("%Y%m%d-%H%M%S")
-        run_dir = Path(p["run_dir"] or f"runs/{p['env']}__{p['algo']}__{p['seed']}__ros-{stamp}")
-
-        # Heavy imports after validation, so a bad parameter fails fast.
-        from sdhn_sim.envs import make_env
-        from sdhn_train import checkpoint as ckpt
-        from sdhn_train.algorithms import EnvInfo
-        from sdhn_train.remote_learner import RemoteLearner, latest_checkpoint
-
-        existing = latest_checkpoint(run_dir)
-        if existing is not None and not p["resume"]:
-            raise ConfigError(f"run_dir: {run_dir} holds checkpoints of an earlier run; "
-                              "allowed: resume:=true, or an empty or new run_dir")
-        env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
-        self.info = EnvInfo.of(env)
-        self.learner = RemoteLearner(cfg, self.info, run_dir)
-        try:
-            resumed = self.learner.resume_latest() if p["resume"] else None
-        except (ckpt.CheckpointError, KeyError, ValueError, RuntimeError) as e:
-            raise ConfigError(f"resume: the newest checkpoint in {run_dir} cannot be loaded "
-                              f"({str(e)[:200]}); allowed: a run_dir with a valid checkpoint, "
-                              "or resume:=false with a new run_dir") from e
-        if resumed is None:
-            self.learner.save_checkpoint()
-        self.run_dir = run_dir
-        self.ns = p["team_ns"].rstrip("/")
+        p = declare_parameters(self)
+        check_params(p)
+        cfg = build_config(p.env, p.algo, p.seed, p.rollout_steps, p.config)
+        self.learner, env, resumed = open_learner(p, cfg)
+        self.run_dir, self.info = self.learner.run_dir, self.learner.info
+        self.ns = p.team_ns.rstrip("/")
         n = self.info.num_robots
         self.assembler = TransitionAssembler(n, self.info.obs_size, self.info.state_size,
                                              self.info.num_actions,
@@ -134,26 +198,7 @@ class TrainerNode(Node):
         self.get_logger().info(
             f"ready: env={cfg.env.name} algo={cfg.algo.name} robots={n} "
             f"rollout_steps={cfg.ppo.rollout_len} version={self.learner.version} ({how}) "
-            f"run_dir={run_dir}")
-
-    @staticmethod
-    def _validate(p: dict[str, Any]) -> None:
-        if p["env"] not in ENV_NAMES:
-            raise ConfigError(f"env: {p['env']!r} is unknown; allowed: {', '.join(ENV_NAMES)}")
-        if p["algo"] not in ALGO_NAMES:
-            raise ConfigError(f"algo: {p['algo']!r} is unknown; allowed: {', '.join(ALGO_NAMES)}")
-        if not isinstance(p["seed"], int) or p["seed"] < 0:
-            raise ConfigError(f"seed: {p['seed']!r}; allowed: an integer >= 0")
-        if not isinstance(p["rollout_steps"], int) or p["rollout_steps"] < 2:
-            raise ConfigError(f"rollout_steps: {p['rollout_steps']!r}; allowed: an integer >= 2")
-        if not isinstance(p["resume"], bool):
-            raise ConfigError(f"resume: {p['resume']!r}; allowed: true or false")
-        for name in ("run_dir", "config", "team_ns"):
-            if not isinstance(p[name], str):
-                raise ConfigError(f"{name}: {p[name]!r}; allowed: a string")
-        if not p["team_ns"].startswith("/"):
-            raise ConfigError(f"team_ns: {p['team_ns']!r}; allowed: an absolute namespace "
-                              "like /sdhn")
+            f"run_dir={self.run_dir}")
 
     # -- callbacks (executor thread): validate, hand to the assembler, queue rollouts --------
 
@@ -234,8 +279,8 @@ class TrainerNode(Node):
         return len(blob.payload), time.perf_counter() - t0
 
     def learn_loop(self) -> None:
-        from sdhn_train.ppo import NonFiniteLossError
-        from sdhn_train.trainer import MetricsLog, episode_metrics
+        from sdhn_train.learners.base import NonFiniteLossError
+        from sdhn_train.runs import MetricsLog, episode_metrics
 
         log = MetricsLog(self.run_dir, self.learner.cfg.log.tensorboard)
         try:

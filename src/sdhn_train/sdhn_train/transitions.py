@@ -236,10 +236,6 @@ class TransitionAssembler:
     def pending_records(self) -> int:
         return len(self._records)
 
-    @property
-    def buffered_transitions(self) -> int:
-        return len(self._buffer)
-
     # -- internals --------------------------------------------------------------------------
 
     def _record(self, key: Key) -> tuple[_Record | None, str | None]:

@@ -1,14 +1,19 @@
-"""The one PPO update shared by SDHN, MAPPO and the ROS trainer node.
+"""The one PPO learner shared by SDHN, MAPPO, DICG and the ROS trainer node.
 
 ``PPOLearner(actor, critic, cfg).update(rollout) -> metrics`` reads top to bottom like CleanRL's
 loop: target-critic values -> bootstrap -> GAE -> epochs of minibatches (over environments, so the
 recurrent actor and critic are re-run over whole stored sequences from their stored initial
-hidden states) -> metrics. Only the critic differs between algorithms.
+hidden states) -> metrics. Only the critic differs between algorithms: any ``Critic`` below.
+Equations: docs/sdhn-equations.md.
 """
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import time
+from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 import torch
@@ -16,14 +21,107 @@ from torch import Tensor, nn
 
 from sdhn_policy.actor_torch import Actor
 from sdhn_policy.weights import ActorWeights
-from sdhn_train.config import PPOConfig
-from sdhn_train.critics import Critic, make_target, soft_update
+from sdhn_train import checkpoint as ckpt
+from sdhn_train.learners.base import (
+    F32,
+    Arrays,
+    HypergraphSamples,
+    JsonDict,
+    NonFiniteLossError,
+    actor_hidden_after,
+    sample_categorical,
+)
 from sdhn_train.returns import gae_advantages, td_errors, value_targets
 from sdhn_train.rollout import Rollout
+from sdhn_train.sections import ConfigError, need, need_positive, opt
+
+ModuleT = TypeVar("ModuleT", bound=nn.Module)
 
 
-class NonFiniteLossError(RuntimeError):
-    """A loss became NaN/inf; training must stop."""
+@dataclass
+class PPOConfig:
+    rollout_len: int = opt(128, "T: steps per environment per rollout")
+    lr: float | None = opt(None, "actor Adam learning rate; null = algorithm default "
+                                 "(sdhn 6e-4, mappo 3e-4)")
+    critic_lr: float | None = opt(None, "critic Adam learning rate; null = same as lr")
+    gamma: float = opt(0.99, "discount factor")
+    gae_lambda: float = opt(0.95, "GAE lambda")
+    clip: float = opt(0.2, "PPO ratio clip epsilon")
+    epochs: int = opt(4, "passes over each rollout")
+    num_minibatches: int = opt(4, "minibatches per epoch, split over environments (<= B)")
+    entropy_coef: float = opt(0.01, "entropy bonus weight")
+    max_grad_norm: float = opt(10.0, "gradient-norm clip for actor and critic")
+    normalize_advantages: bool = opt(True, "standardise advantages per minibatch")
+    target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
+                                         "null = algorithm default (sdhn 0.01, mappo 1 = none)")
+    reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
+
+    def validate(self) -> None:
+        need_positive("ppo", {"rollout_len": self.rollout_len, "epochs": self.epochs,
+                              "num_minibatches": self.num_minibatches})
+        for name, lr in {"lr": self.lr, "critic_lr": self.critic_lr}.items():
+            need(lr is None or lr > 0, f"ppo.{name}", "a number > 0 or null", lr)
+        need(0.0 <= self.gamma <= 1.0, "ppo.gamma", "[0, 1]", self.gamma)
+        need(0.0 <= self.gae_lambda <= 1.0, "ppo.gae_lambda", "[0, 1]", self.gae_lambda)
+        need(0.0 < self.clip < 1.0, "ppo.clip", "(0, 1)", self.clip)
+        need(self.entropy_coef >= 0, "ppo.entropy_coef", ">= 0", self.entropy_coef)
+        need(self.max_grad_norm > 0, "ppo.max_grad_norm", "> 0", self.max_grad_norm)
+        need(self.reward_scale > 0, "ppo.reward_scale", "> 0", self.reward_scale)
+        need(self.target_tau is None or 0.0 < self.target_tau <= 1.0, "ppo.target_tau",
+             "(0, 1] or null", self.target_tau)
+
+
+def resolve_ppo(cfg: PPOConfig, default_lr: float, default_target_tau: float) -> PPOConfig:
+    """Fill the algorithm-dependent defaults (null lr / critic_lr / target_tau)."""
+    lr = cfg.lr if cfg.lr is not None else default_lr
+    return dataclasses.replace(
+        cfg, lr=lr, critic_lr=cfg.critic_lr if cfg.critic_lr is not None else lr,
+        target_tau=cfg.target_tau if cfg.target_tau is not None else default_target_tau)
+
+
+@dataclass
+class CriticOutput:
+    values: Tensor  # [T, B, N]
+    hiddens: Tensor  # [T, *hidden shape]: hidden *after* each step (for bootstrap values)
+    aux_loss: Tensor  # scalar added to the TD loss (0 for critics without one)
+    metrics: dict[str, Tensor] = field(default_factory=dict)  # detached scalars to log
+
+
+class Critic(nn.Module):
+    """A centralised critic for the PPO learner.
+
+    Maps a stored sequence (obs [T, B, N, D], state [T, B, S]) to per-robot values [T, B, N]; it
+    may be recurrent (``initial_state``/hidden carried across steps and rollouts) and may add an
+    auxiliary loss (SDHN's lambda_CB * L_Sk). A feed-forward critic keeps the empty hidden state
+    [0, B, 0] of this base class."""
+
+    def initial_state(self, batch: int) -> Tensor:
+        return torch.zeros(0, batch, 0)
+
+    def forward_sequence(self, obs: Tensor, state: Tensor, h0: Tensor,
+                         resets: Tensor) -> CriticOutput:
+        raise NotImplementedError
+
+    def value_step(self, obs: Tensor, state: Tensor, h: Tensor) -> Tensor:
+        """One more step from hidden h: obs [K, N, D], state [K, S] -> values [K, N]."""
+        raise NotImplementedError
+
+    def hypergraphs(self, obs: Tensor, h0: Tensor, resets: Tensor) -> HypergraphSamples | None:
+        """Hypergraphs the critic generates over a sequence; None for critics without any."""
+        return None
+
+
+def soft_update(target: nn.Module, source: nn.Module, rate: float) -> None:
+    """theta' <- (1 - rate) theta' + rate theta (target critic of eq. v_target / td_error)."""
+    with torch.no_grad():
+        for tp, sp in zip(target.parameters(), source.parameters(), strict=True):
+            tp.lerp_(sp, rate)
+
+
+def make_target(critic: ModuleT) -> ModuleT:
+    target = copy.deepcopy(critic)
+    target.requires_grad_(False)
+    return target
 
 
 def clipped_policy_loss(logp: Tensor, logp_old: Tensor, adv: Tensor,
@@ -45,24 +143,73 @@ def explained_variance(pred: Tensor, target: Tensor) -> float:
 
 
 class PPOLearner:
-    """Owns the actor, critic, target critic and their optimisers."""
+    """Owns the actor, critic, target critic and their optimisers (a ``Learner``)."""
 
     def __init__(self, actor: Actor, critic: Critic, cfg: PPOConfig,
                  rng: np.random.Generator | None = None) -> None:
         if cfg.lr is None or cfg.critic_lr is None or cfg.target_tau is None:
-            raise ValueError("PPOConfig must be resolved (algorithms.resolve_ppo) before use")
-        self.actor, self.critic, self.cfg = actor, critic, cfg
+            raise ConfigError("PPOConfig must be resolved (resolve_ppo) before use")
+        self._actor, self.critic, self.cfg = actor, critic, cfg
         self.target_tau = cfg.target_tau
         self.target_critic = make_target(critic)
         self.actor_opt = torch.optim.Adam(actor.parameters(), lr=cfg.lr, eps=1e-5)
         self.critic_opt = torch.optim.Adam(critic.parameters(), lr=cfg.critic_lr, eps=1e-5)
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.num_updates = 0
-        self.next_critic_hidden: np.ndarray | None = None  # critic_h0 for the next rollout
+        self._next_critic_hidden: F32 | None = None  # critic_h0 for the next rollout
         self.timings = {"critic": 0.0, "actor_update": 0.0}  # wall seconds (benchmark shares)
+
+    @property
+    def actor(self) -> Actor:
+        return self._actor
 
     def export_actor(self, version: int) -> ActorWeights:
         return self.actor.export(version)
+
+    def sample_actions(self, logits: Tensor) -> tuple[Tensor, Tensor]:
+        return sample_categorical(logits)
+
+    def initial_critic_hidden(self, batch: int) -> F32:
+        return self.critic.initial_state(batch).numpy()
+
+    def next_critic_hidden(self) -> F32:
+        if self._next_critic_hidden is None:
+            raise RuntimeError("next_critic_hidden before the first update")
+        return self._next_critic_hidden
+
+    @torch.no_grad()
+    def hidden_after(self, obs: F32, state: F32) -> tuple[F32, F32]:
+        critic_h = self.target_critic.initial_state(1)
+        p = obs.shape[0]
+        if p:
+            out = self.target_critic.forward_sequence(
+                torch.from_numpy(obs)[:, None], torch.from_numpy(state)[:, None], critic_h,
+                torch.zeros(p, 1, dtype=torch.bool))
+            critic_h = out.hiddens[-1]
+        return actor_hidden_after(self.actor, obs), critic_h.numpy().copy()
+
+    @torch.no_grad()
+    def hypergraphs(self, rollout: Rollout) -> HypergraphSamples | None:
+        h0 = (torch.from_numpy(rollout.critic_h0) if rollout.critic_h0 is not None
+              else self.critic.initial_state(rollout.shape[1]))
+        return self.critic.hypergraphs(torch.from_numpy(rollout.obs), h0,
+                                       torch.from_numpy(rollout.resets()))
+
+    # -- checkpoint state -----------------------------------------------------------------
+
+    def _parts(self) -> tuple[dict[str, nn.Module], dict[str, torch.optim.Optimizer]]:
+        return ({"actor": self.actor, "critic": self.critic, "target": self.target_critic},
+                {"optim.actor": self.actor_opt, "optim.critic": self.critic_opt})
+
+    def state_dict(self) -> tuple[Arrays, JsonDict]:
+        arrays, meta = ckpt.modules_state(*self._parts())
+        meta.update(num_updates=self.num_updates, rng_numpy=self.rng.bit_generator.state)
+        return arrays, meta
+
+    def load_state_dict(self, arrays: Arrays, meta: JsonDict) -> None:
+        ckpt.load_modules_state(*self._parts(), arrays, meta)
+        self.rng.bit_generator.state = meta["rng_numpy"]
+        self.num_updates = int(meta["num_updates"])
 
     # -- pieces of the update -------------------------------------------------------------
 
@@ -87,7 +234,7 @@ class PPOLearner:
         adv = gae_advantages(deltas, r["done"], self.cfg.gamma, self.cfg.gae_lambda)
         carry = out.hiddens[-1] * (~r["done"][-1]).to(values.dtype)[None, :, None] \
             if h0.numel() else h0
-        self.next_critic_hidden = carry.numpy().copy()
+        self._next_critic_hidden = carry.numpy().copy()
         return values, adv, value_targets(adv, values)
 
     def _actor_logits(self, r: dict[str, Tensor], envs: Tensor) -> Tensor:

@@ -43,7 +43,11 @@ from typing import Any, TextIO
 
 import yaml
 
-from sdhn_train.config import ALGO_NAMES, ENV_NAMES, Config, ConfigError, set_field, validate
+from sdhn_sim.envs.registry import env_names
+from sdhn_train.algorithms.registry import ALGO_NAMES
+from sdhn_train.checkpoint import latest_checkpoint
+from sdhn_train.config import Config, ConfigError, set_field, validate
+from sdhn_train.runs import PH_DIR
 
 DONE = "DONE.json"
 SPEC = "run.json"
@@ -111,8 +115,8 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
             raise ExperimentError(f"{path}: methods.{m}.algo = {algo!r}; allowed: "
                                   f"{', '.join(ALGO_NAMES)}")
     for t in tasks:
-        if t not in ENV_NAMES:
-            raise ExperimentError(f"{path}: task {t!r}; allowed: {', '.join(ENV_NAMES)}")
+        if t not in env_names():
+            raise ExperimentError(f"{path}: task {t!r}; allowed: {', '.join(env_names())}")
     groups = data.get("experiments") or [{"methods": list(methods), "tasks": list(tasks)}]
     pairs: list[tuple[str, str]] = []
     for i, group in enumerate(groups):
@@ -161,11 +165,6 @@ def run_state(run: RunSpec, logdir: Path) -> str:
     return "done" if (d / DONE).exists() else "partial"
 
 
-def latest_checkpoint(run_dir: Path) -> Path | None:
-    found = sorted((run_dir / "checkpoints").glob("step_*.json"))
-    return found[-1].with_suffix("") if found else None
-
-
 def truncate_metrics(csv_path: Path, max_step: int) -> None:
     """Drop rows logged after ``max_step`` (written after the checkpoint a run resumes from)."""
     if not csv_path.exists():
@@ -193,7 +192,7 @@ def prepare(run: RunSpec, logdir: Path) -> list[str]:
     if ckpt is not None:
         step = int(json.loads(ckpt.with_suffix(".json").read_text())["global_step"])
         truncate_metrics(d / "metrics.csv", step)
-        for snap in (d / "hypergraph").glob("ph_*.npz"):
+        for snap in (d / PH_DIR).glob("ph_*.npz"):
             if int(snap.stem[3:]) > step:
                 snap.unlink()
         cmd += ["--resume", str(ckpt)]

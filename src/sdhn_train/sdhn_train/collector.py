@@ -1,4 +1,7 @@
-"""Vectorised rollout collection and greedy evaluation for the in-process trainer."""
+"""Vectorised rollout collection and greedy evaluation for the in-process trainer.
+
+The ROS trainer node does not collect: it assembles the same ``Rollout`` from messages
+(``sdhn_train.transitions``)."""
 
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ import torch
 
 from sdhn_policy.actor_torch import Actor
 from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
+from sdhn_train.learners.base import sample_categorical
 from sdhn_train.rollout import Rollout
 
 
@@ -27,20 +31,13 @@ class Timings:
 Sampler = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
 
-def sample_categorical(logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Actions [X] ~ Categorical(logits [X, A]) and their log-probs [X]."""
-    logp_all = torch.log_softmax(logits, -1)
-    # Gumbel-max sampling == Categorical(logits).sample()
-    a = (logp_all - torch.log(-torch.log(torch.rand_like(logp_all)))).argmax(-1)
-    return a, logp_all.gather(-1, a[:, None])[:, 0]
-
-
 class RolloutCollector:
     """Steps B environments with the shared actor and fills ``Rollout``s of length T.
 
     Keeps the environments' current obs/state and the actor's hidden state between rollouts.
     Actions are sampled with torch's global RNG (seeded in one place by the trainer), by
-    ``sampler`` (default: from the policy's softmax; QMIX passes epsilon-greedy)."""
+    ``sampler`` (default: from the policy's softmax; the trainer passes the learner's
+    ``sample_actions``, epsilon-greedy for the value-mixing learner)."""
 
     def __init__(self, env: BatchedEnv, actor: Actor, rollout_len: int,
                  sampler: Sampler | None = None) -> None:

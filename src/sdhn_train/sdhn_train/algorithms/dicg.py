@@ -16,19 +16,33 @@ It is feed-forward (no hidden state), so it plugs into ``PPOLearner`` like MAPPO
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, ClassVar
+from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
-from sdhn_train.config import Config
-from sdhn_train.critics import CriticOutput, mlp
+from sdhn_policy.actor_torch import Actor
+from sdhn_train.algorithms.base import Settings
+from sdhn_train.envinfo import EnvInfo, actor_spec
+from sdhn_train.learners.base import Learner
+from sdhn_train.learners.ppo import Critic, CriticOutput, PPOLearner, resolve_ppo
+from sdhn_train.nets import mlp
+from sdhn_train.sections import need_positive, opt
 
-if TYPE_CHECKING:
-    from sdhn_train.algorithms import EnvInfo
+
+@dataclass
+class DICGConfig:
+    embed: int = opt(64, "agent embedding size (attention and GCN width)")
+    gcn_layers: int = opt(2, "GCN message-passing rounds over the soft adjacency")
+    state_hidden: int = opt(64, "global-state encoder size of the value head")
+
+    def validate(self) -> None:
+        need_positive("dicg", {"embed": self.embed, "gcn_layers": self.gcn_layers,
+                               "state_hidden": self.state_hidden})
 
 
-class DICGCritic(nn.Module):
+class DICGCritic(Critic):
     def __init__(self, obs_size: int, state_size: int, num_robots: int, *, embed: int = 64,
                  gcn_layers: int = 2, state_hidden: int = 64) -> None:
         super().__init__()
@@ -38,9 +52,6 @@ class DICGCritic(nn.Module):
         self.gcn = nn.ModuleList(nn.Linear(embed, embed, bias=False) for _ in range(gcn_layers))
         self.state_encoder = mlp([state_size, state_hidden])
         self.value_head = nn.Sequential(mlp([state_hidden + embed, 64]), nn.Linear(64, 1))
-
-    def initial_state(self, batch: int) -> Tensor:
-        return torch.zeros(0, batch, 0)
 
     def adjacency(self, e: Tensor) -> Tensor:
         """Soft adjacency mu [..., N, N] (rows sum to 1) from embeddings e [..., N, F]."""
@@ -73,11 +84,14 @@ class DICGCritic(nn.Module):
 class DICG:
     """DICG-CE (Li et al. 2021) as a PPO critic: MAPPO's learner, DICG's centralised critic."""
 
-    name: ClassVar[str] = "dicg"
-    default_lr: ClassVar[float] = 3e-4
-    default_target_tau: ClassVar[float] = 1.0
+    name = "dicg"
+    config = DICGConfig
+    default_lr = 3e-4
+    default_target_tau = 1.0
 
-    def build_critic(self, cfg: Config, info: EnvInfo) -> DICGCritic:
-        d = cfg.dicg
-        return DICGCritic(info.obs_size, info.state_size, info.num_robots, embed=d.embed,
-                          gcn_layers=d.gcn_layers, state_hidden=d.state_hidden)
+    def build_learner(self, cfg: Settings, info: EnvInfo, rng: np.random.Generator) -> Learner:
+        d = cfg.section(DICGConfig)
+        critic = DICGCritic(info.obs_size, info.state_size, info.num_robots, embed=d.embed,
+                            gcn_layers=d.gcn_layers, state_hidden=d.state_hidden)
+        return PPOLearner(Actor(actor_spec(cfg.actor, info)), critic,
+                          resolve_ppo(cfg.ppo, self.default_lr, self.default_target_tau), rng)

@@ -8,30 +8,43 @@ target networks, epsilon-greedy; ``qmix.*`` fields apply):
    M} from each robot's observation (no sampling, no threshold, no skewness prior - the contrast
    to SDHN of the paper's Table "method comparison");
 2. ``hgcn_layers`` rounds of hypergraph convolution (the shared ``hgcn_propagate``,
-   D^-1/2 H B^-1 H^T D^-1/2, of ``sdhn_train.hypergraph``) over the agents' utilities,
-   q^{l+1} = |theta_l| P q^l, added to q (P and |theta| are non-negative, so this keeps
+   D^-1/2 H B^-1 H^T D^-1/2, of ``sdhn_train.algorithms.sdhn.hypergraph``) over the agents'
+   utilities, q^{l+1} = |theta_l| P q^l, added to q (P and |theta| are non-negative, so this keeps
    monotonicity: dQ_tot/dQ_i >= 0);
 3. QMIX's monotonic hypernetwork mixer on the convolved utilities and the global state.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from sdhn_train.baselines.qmix import QMixer, ValueMixingLearner, build_value_mixing_learner
-from sdhn_train.config import Config
-from sdhn_train.critics import mlp
-from sdhn_train.hypergraph import hgcn_propagate
+from sdhn_train.algorithms.base import Settings
+from sdhn_train.algorithms.qmix import QMIXConfig, QMixer, value_mixing_learner
+from sdhn_train.algorithms.sdhn.hypergraph import hgcn_propagate
+from sdhn_train.envinfo import EnvInfo
+from sdhn_train.learners.base import Learner
+from sdhn_train.learners.value_mixing import Mixer
+from sdhn_train.nets import mlp
+from sdhn_train.sections import need_positive, opt
 
-if TYPE_CHECKING:
-    from sdhn_train.algorithms import EnvInfo
+
+@dataclass
+class HGCNMixConfig:
+    num_hyperedges: int = opt(10, "M: hyperedges of the learned deterministic hypergraph")
+    hgcn_hidden: int = opt(64, "HGCN feature size")
+    hgcn_layers: int = opt(2, "HGCN layers")
+
+    def validate(self) -> None:
+        need_positive("hgcn_mix", {"num_hyperedges": self.num_hyperedges,
+                                   "hgcn_hidden": self.hgcn_hidden,
+                                   "hgcn_layers": self.hgcn_layers})
 
 
-class HGCNMixer(nn.Module):
+class HGCNMixer(Mixer):
     def __init__(self, obs_size: int, state_size: int, num_robots: int, *,
                  num_hyperedges: int = 10, hgcn_hidden: int = 64, hgcn_layers: int = 2,
                  embed: int = 32, hypernet_hidden: int = 64) -> None:
@@ -41,9 +54,6 @@ class HGCNMixer(nn.Module):
                                       nn.Linear(hgcn_hidden, num_hyperedges))
         self.theta = nn.Parameter(torch.full((hgcn_layers,), 0.5))
         self.qmix = QMixer(state_size, num_robots, embed, hypernet_hidden)
-
-    def initial_state(self, batch: int) -> Tensor:
-        return torch.zeros(0, batch, 0)
 
     def incidence(self, obs: Tensor) -> Tensor:
         """Deterministic weighted incidence H [..., N, M] >= 0 from observations [..., N, D]."""
@@ -62,17 +72,16 @@ class HGCNMixer(nn.Module):
 
 class HGCNMIX:
     """HGCN-MIX (Bai et al. 2021): deterministic learned hypergraph, hypergraph convolution in a
-    monotonic value mixer; QMIX's learner."""
+    monotonic value mixer; QMIX's learner and ``qmix`` settings."""
 
-    name: ClassVar[str] = "hgcn_mix"
-    default_lr: ClassVar[float] = 5e-4
-    default_target_tau: ClassVar[float] = 1.0
+    name = "hgcn_mix"
+    config = HGCNMixConfig
+    default_lr = 5e-4
 
-    def build_learner(self, cfg: Config, info: EnvInfo,
-                      rng: np.random.Generator) -> ValueMixingLearner:
-        h = cfg.hgcn_mix
+    def build_learner(self, cfg: Settings, info: EnvInfo, rng: np.random.Generator) -> Learner:
+        h, q = cfg.section(HGCNMixConfig), cfg.section(QMIXConfig)
         mixer = HGCNMixer(info.obs_size, info.state_size, info.num_robots,
                           num_hyperedges=h.num_hyperedges, hgcn_hidden=h.hgcn_hidden,
-                          hgcn_layers=h.hgcn_layers, embed=cfg.qmix.mixer_embed,
-                          hypernet_hidden=cfg.qmix.hypernet_hidden)
-        return build_value_mixing_learner(cfg, info, rng, mixer, self.default_lr)
+                          hgcn_layers=h.hgcn_layers, embed=q.mixer_embed,
+                          hypernet_hidden=q.hypernet_hidden)
+        return value_mixing_learner(cfg, info, rng, mixer, self.default_lr)

@@ -1,5 +1,5 @@
-"""Figures and tables of the paper's experiments, from run logs only; and the P_H snapshots that
-SDHN runs write for them.
+"""Figures and tables of the paper's experiments, from run logs only (the trainer writes the P_H
+snapshots, ``sdhn_train.runs.save_ph_snapshot``; this module only reads and plots them).
 
     make_figures LOGDIR OUTDIR          (scripts/make_figures.py)
 
@@ -30,37 +30,27 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 import yaml
 
-from sdhn_train.rollout import Rollout
-
-PH_DIR = "hypergraph"
-
-
-@torch.no_grad()
-def write_ph_snapshot(run_dir: Path, step: int, critic: Any,
-                      rollout: Rollout | None) -> Path | None:
-    """If ``critic`` generates hypergraphs (SDHN), write ``<run>/hypergraph/ph_<step>.npz`` with
-    P_H [N, M] of environment 0 at the rollout's last step (``ph_last``) and averaged over the
-    rollout's steps and environments (``ph_mean``). Returns the path, or None (other critics,
-    no rollout yet)."""
-    if rollout is None or not hasattr(critic, "probabilities"):
-        return None
-    h0 = (torch.from_numpy(rollout.critic_h0) if rollout.critic_h0 is not None
-          else critic.initial_state(rollout.shape[1]))
-    p = critic.probabilities(torch.from_numpy(rollout.obs), h0,
-                             torch.from_numpy(rollout.resets())).numpy()  # [T, B, N, M]
-    out = run_dir / PH_DIR / f"ph_{step:012d}.npz"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(out, step=np.int64(step), ph_last=p[-1, 0], ph_mean=p.mean((0, 1)))
-    return out
-
+from sdhn_sim.envs.registry import env_names
+from sdhn_train.algorithms.registry import ALGO_NAMES
+from sdhn_train.runs import PH_DIR
 
 # --- reading runs -----------------------------------------------------------------------------
 
-TASK_ORDER = ("maif-tiny", "maif-10", "maif-16", "maif-20", "rware-3", "rware-6", "rware-9")
-METHOD_ORDER = ("sdhn", "mappo", "qmix", "dicg", "hgcn_mix", "sdhn_wo_lsk", "sdhn_wo_shr")
+ABLATIONS = ("sdhn_wo_lsk", "sdhn_wo_shr")  # method labels of SDHN runs with an ablation set
+
+
+def task_order() -> tuple[str, ...]:
+    """Plot order of tasks: the env registry's."""
+    return tuple(env_names())
+
+
+def method_order() -> tuple[str, ...]:
+    """Plot order of methods: the algorithm registry's, then SDHN's ablations."""
+    return (*ALGO_NAMES, *ABLATIONS)
+
+
 METHOD_LABEL = {"sdhn": "SDHN", "mappo": "MAPPO", "qmix": "QMIX", "dicg": "DICG",
                 "hgcn_mix": "HGCN-MIX", "sdhn_wo_lsk": "SDHN w/o $L_{Sk}$",
                 "sdhn_wo_shr": "SDHN w/o SHR"}
@@ -216,7 +206,7 @@ def _grid(n: int, width: float = 4.2, height: float = 3.2) -> tuple[Any, list[An
 
 
 def _curves(ax: Any, groups: dict[str, list[Run]], tag: str, title: str) -> None:
-    for method in _ordered(groups, METHOD_ORDER):
+    for method in _ordered(groups, method_order()):
         got = seed_curves(groups[method], tag)
         if got is None:
             continue
@@ -239,8 +229,8 @@ def _by(runs: list[Run], *attrs: str) -> dict[Any, list[Run]]:
 
 
 def fig_returns(runs: list[Run], out: Path) -> Path | None:
-    main = [r for r in runs if r.method not in ("sdhn_wo_lsk", "sdhn_wo_shr")]
-    tasks = _ordered(_by(main, "task"), TASK_ORDER)
+    main = [r for r in runs if r.method not in ABLATIONS]
+    tasks = _ordered(_by(main, "task"), task_order())
     if not tasks:
         return None
     fig, axes = _grid(len(tasks))
@@ -253,6 +243,12 @@ def fig_returns(runs: list[Run], out: Path) -> Path | None:
     fig.savefig(path, dpi=120)
     _plt().close(fig)
     return path
+
+
+def lambda_sk(run: Run) -> float | None:
+    """The run's target skewness lambda_Sk, from its own config (None if it has none)."""
+    value = run.config.get("sdhn", {}).get("lambda_sk")
+    return float(value) if value is not None else None
 
 
 def num_robots(run: Run) -> int:
@@ -276,15 +272,15 @@ def final_makespan(runs: list[Run]) -> tuple[float | None, list[float]]:
 
 def fig_makespan(runs: list[Run], out: Path) -> Path | None:
     maif = [r for r in runs if r.task.startswith("maif-") and r.task != "maif-tiny"
-            and r.method not in ("sdhn_wo_lsk", "sdhn_wo_shr")]
+            and r.method not in ABLATIONS]
     if not maif:
         maif = [r for r in runs if r.task.startswith("maif-")
-                and r.method not in ("sdhn_wo_lsk", "sdhn_wo_shr")]
+                and r.method not in ABLATIONS]
     if not maif:
         return None
     plt = _plt()
     tasks = sorted(_by(maif, "task"), key=lambda t: num_robots(_by(maif, "task")[t][0]))
-    methods = _ordered(_by(maif, "method"), METHOD_ORDER)
+    methods = _ordered(_by(maif, "method"), method_order())
     fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(tasks) * max(1, len(methods)) / 3, 3.4))
     width = 0.8 / len(methods)
     tops = []
@@ -318,7 +314,7 @@ def fig_makespan(runs: list[Run], out: Path) -> Path | None:
 
 def fig_ablations(runs: list[Run], out: Path) -> list[Path]:
     paths = []
-    for task in _ordered(_by(runs, "task"), TASK_ORDER):
+    for task in _ordered(_by(runs, "task"), task_order()):
         group = _by([r for r in runs if r.task == task], "method")
         panels = [(abl, title) for abl, title in (("sdhn_wo_lsk", "with / without $L_{Sk}$"),
                                                   ("sdhn_wo_shr", "with / without SHR"))
@@ -349,7 +345,7 @@ def latest_ph(run: Run) -> tuple[int, np.ndarray] | None:
 def fig_ph_heatmaps(runs: list[Run], out: Path) -> list[Path]:
     paths = []
     plt = _plt()
-    for task in _ordered(_by(runs, "task"), TASK_ORDER):
+    for task in _ordered(_by(runs, "task"), task_order()):
         found = {}
         for method in ("sdhn_wo_lsk", "sdhn"):
             cands = sorted((r for r in runs if r.task == task and r.method == method),
@@ -380,15 +376,19 @@ def fig_ph_heatmaps(runs: list[Run], out: Path) -> list[Path]:
 
 def fig_skewness(runs: list[Run], out: Path) -> Path | None:
     sk = [r for r in runs if "hypergraph/skewness" in r.series]
-    tasks = _ordered(_by(sk, "task"), TASK_ORDER)
+    tasks = _ordered(_by(sk, "task"), task_order())
     if not tasks:
         return None
     fig, axes = _grid(len(tasks))
     for ax, task in zip(axes, tasks, strict=True):
         _curves(ax, _by([r for r in sk if r.task == task], "method"), "hypergraph/skewness",
                 f"{task}: skewness of sampled H")
-        ax.axhline(-0.6, color="k", lw=0.8, ls="--")
-        ax.set_ylabel("Sk (target $\\lambda_{Sk}$ = -0.6)")
+        targets = sorted({t for r in sk if r.task == task and r.method != "sdhn_wo_lsk"
+                          and (t := lambda_sk(r)) is not None})
+        for target in targets:
+            ax.axhline(target, color="k", lw=0.8, ls="--")
+        shown = ", ".join(f"{t:g}" for t in targets) or "none"
+        ax.set_ylabel(f"Sk (target $\\lambda_{{Sk}}$ = {shown})")
     fig.tight_layout()
     path = out / "skewness.png"
     fig.savefig(path, dpi=120)
@@ -408,9 +408,9 @@ def results_table(runs: list[Run]) -> str:
     lines = ["| task | method | seeds | steps | greedy return | success rate | makespan |",
              "|---|---|---|---|---|---|---|"]
     by_task = _by(runs, "task")
-    for task in _ordered(by_task, TASK_ORDER):
+    for task in _ordered(by_task, task_order()):
         by_method = _by(by_task[task], "method")
-        for method in _ordered(by_method, METHOD_ORDER):
+        for method in _ordered(by_method, method_order()):
             group = by_method[method]
             prefix = "eval" if all(r.final_eval_step() is not None for r in group) else "charts"
             rets = [v for r in group if (v := r.final(f"{prefix}/episodic_return")) is not None]

@@ -1,13 +1,14 @@
 """Stochastic hypergraph: generator f_g, Binary Concrete sampling, and the HGCN layer.
 
-Equations refer to labels in ``shared/paper/sdhn_paper.tex``; decisions to ``shared/spec/sdhn.md``.
+Equation names are the paper's labels; docs/sdhn-equations.md maps each to this code and records
+the decisions where the paper is silent or contradicts itself.
 Shapes: X = any batch, N robots, M hyperedges, F features.
 """
 
 from __future__ import annotations
 
 import itertools
-from typing import Literal
+from typing import Literal, get_args
 
 import torch
 from torch import Tensor, nn
@@ -15,7 +16,7 @@ from torch import Tensor, nn
 from sdhn_policy.actor_torch import gru_sequence
 
 Noise = Literal["logistic", "gumbel_paper"]
-NOISES: tuple[str, ...] = ("logistic", "gumbel_paper")
+NOISES: tuple[str, ...] = get_args(Noise)  # the one list of Binary Concrete noise laws
 
 
 class HypergraphGenerator(nn.Module):
@@ -70,7 +71,8 @@ def binary_concrete(logits: Tensor, tau: float, noise: Noise = "logistic",
     y = sigmoid((log p - log(1-p) + eps) / tau) with log p - log(1-p) = ``logits``;
     H = 1{y >= 0.5} forward, gradient of y backward (straight-through, as ``H_hard + y -
     y.detach()`` but exactly 0/1).
-    ``noise="logistic"``: eps = log u - log(1-u), which gives P(H=1) = p exactly (spec decision).
+    ``noise="logistic"``: eps = log u - log(1-u), which gives P(H=1) = p exactly (our decision,
+    docs/sdhn-equations.md).
     ``noise="gumbel_paper"``: eps = log(-log u), the paper's single-Gumbel form.
     ``stochastic=False`` (ablation "w/o SHR"): eps = 0, i.e. H = 1{P_H >= 0.5}.
     Returns (H [straight-through], y).

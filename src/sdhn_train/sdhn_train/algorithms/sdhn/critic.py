@@ -1,50 +1,27 @@
-"""Centralised critics behind one interface: SDHN's hypergraph critic and MAPPO's MLP critic.
-
-A critic maps a stored sequence (obs [T, B, N, D], state [T, B, S]) to per-robot values
-[T, B, N]; it may be recurrent (``initial_state``/hidden carried across steps and rollouts) and may
-add an auxiliary loss (SDHN's lambda_CB * L_Sk). Both are used by the one PPO learner.
+"""SDHN's centralised critic: a stochastic hypergraph over the robots, generated from their
+observations, message passing by hypergraph convolution, and the skewness loss as its auxiliary
+loss. Equations: docs/sdhn-equations.md.
 """
 
 from __future__ import annotations
 
-import copy
-import itertools
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, TypeAlias, TypeVar
-
+import numpy as np
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
-from sdhn_train.hypergraph import HGCN, HypergraphGenerator, Noise, binary_concrete
-from sdhn_train.skewness import (
+from sdhn_train.algorithms.sdhn.hypergraph import HGCN, HypergraphGenerator, Noise, binary_concrete
+from sdhn_train.algorithms.sdhn.skewness import (
     hyperedge_degrees,
     sample_skewness,
     skewness_loss,
     squashed_skewness,
 )
-
-if TYPE_CHECKING:
-    from sdhn_train.baselines.dicg import DICGCritic
-
-ModuleT = TypeVar("ModuleT", bound=nn.Module)
+from sdhn_train.learners.base import HypergraphSamples
+from sdhn_train.learners.ppo import Critic, CriticOutput
+from sdhn_train.nets import mlp
 
 
-@dataclass
-class CriticOutput:
-    values: Tensor  # [T, B, N]
-    hiddens: Tensor  # [T, *hidden shape]: hidden *after* each step (for bootstrap values)
-    aux_loss: Tensor  # scalar added to the TD loss (0 for critics without one)
-    metrics: dict[str, Tensor] = field(default_factory=dict)  # detached scalars to log
-
-
-def mlp(sizes: list[int]) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for a, b in itertools.pairwise(sizes):
-        layers += [nn.Linear(a, b), nn.ReLU()]
-    return nn.Sequential(*layers)
-
-
-class SDHNCritic(nn.Module):
+class SDHNCritic(Critic):
     """V_i(s, o) = head([enc(s), m_i]) with m = HGCN(enc(o), H), H ~ BinaryConcrete(f_g(o, h))."""
 
     def __init__(self, obs_size: int, state_size: int, num_robots: int, *, num_hyperedges: int = 10,
@@ -61,7 +38,8 @@ class SDHNCritic(nn.Module):
         self.hgcn = HGCN(hgcn_hidden, hgcn_hidden, hgcn_layers)
         self.hgcn_hidden = hgcn_hidden
         self.state_encoder = mlp([state_size, state_hidden])
-        self.value_head = nn.Sequential(mlp([state_hidden + hgcn_hidden, 64]), nn.Linear(64, 1))
+        self.value_head = torch.nn.Sequential(mlp([state_hidden + hgcn_hidden, 64]),
+                                              torch.nn.Linear(64, 1))
 
     def initial_state(self, batch: int) -> Tensor:
         return self.generator.initial_state(batch)
@@ -99,43 +77,11 @@ class SDHNCritic(nn.Module):
             obs[None], h, torch.zeros(1, obs.shape[0], dtype=torch.bool))
         return self._values(logits[0], obs, state)[0]
 
-    def probabilities(self, obs: Tensor, h0: Tensor, resets: Tensor) -> Tensor:
-        """P_H [T, B, N, M] (for heatmaps and the ROS ``hypergraph`` topic)."""
-        return torch.sigmoid(self.generator.forward_sequence(obs, h0, resets)[0])
-
-
-class MLPCritic(nn.Module):
-    """MAPPO's centralised critic: V(s) from the global state, shared by all N robots."""
-
-    def __init__(self, state_size: int, num_robots: int, hidden: tuple[int, ...] = (64, 64)):
-        super().__init__()
-        self.num_robots = num_robots
-        self.net = nn.Sequential(mlp([state_size, *hidden]), nn.Linear(hidden[-1], 1))
-
-    def initial_state(self, batch: int) -> Tensor:
-        return torch.zeros(0, batch, 0)
-
-    def forward_sequence(self, obs: Tensor, state: Tensor, h0: Tensor,
-                         resets: Tensor) -> CriticOutput:
-        values = self.net(state).expand(*state.shape[:-1], self.num_robots)
-        hiddens = h0.unsqueeze(0).expand(state.shape[0], *h0.shape)
-        return CriticOutput(values, hiddens, torch.zeros((), dtype=values.dtype))
-
-    def value_step(self, obs: Tensor, state: Tensor, h: Tensor) -> Tensor:
-        return self.net(state).expand(*state.shape[:-1], self.num_robots)
-
-
-Critic: TypeAlias = "SDHNCritic | MLPCritic | DICGCritic"
-
-
-def soft_update(target: nn.Module, source: nn.Module, rate: float) -> None:
-    """theta' <- (1 - rate) theta' + rate theta (target critic of eq. v_target / td_error)."""
-    with torch.no_grad():
-        for tp, sp in zip(target.parameters(), source.parameters(), strict=True):
-            tp.lerp_(sp, rate)
-
-
-def make_target(critic: ModuleT) -> ModuleT:
-    target = copy.deepcopy(critic)
-    target.requires_grad_(False)
-    return target
+    def hypergraphs(self, obs: Tensor, h0: Tensor, resets: Tensor) -> HypergraphSamples:
+        """P_H, one sampled H and its Sk at every step (the ROS ``hypergraph`` topic, P_H
+        snapshots)."""
+        logits, _ = self.generator.forward_sequence(obs, h0, resets)
+        incidence, _ = binary_concrete(logits, self.tau, self.noise, self.stochastic)
+        sk = squashed_skewness(sample_skewness(hyperedge_degrees(incidence)))
+        return HypergraphSamples(torch.sigmoid(logits).numpy().copy(),
+                                 incidence.numpy().astype(np.uint8), sk.numpy().copy())

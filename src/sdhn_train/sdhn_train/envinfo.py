@@ -1,0 +1,31 @@
+"""What networks need to know about an environment, and the actor architecture built from it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sdhn_policy.weights import ActorSpec
+from sdhn_sim.envs.api import BatchedEnv
+from sdhn_train.sections import ActorConfig
+
+
+@dataclass(frozen=True)
+class EnvInfo:
+    obs_size: int
+    state_size: int
+    num_robots: int
+    num_actions: int
+    max_steps: int = 500  # episode limit (the size of QMIX's replay episodes)
+
+    @classmethod
+    def of(cls, env: BatchedEnv) -> EnvInfo:
+        return cls(env.obs_size, env.state_size, env.num_robots, env.num_actions,
+                   env.max_steps)
+
+
+def actor_spec(cfg: ActorConfig, info: EnvInfo) -> ActorSpec:
+    """The shared decentralised actor (PPO's policy, the value-mixing learners' agent net)."""
+    return ActorSpec(obs_size=info.obs_size, num_actions=info.num_actions,
+                     hidden_sizes=tuple(cfg.hidden_sizes), gru_hidden=cfg.gru_hidden,
+                     use_robot_id=cfg.use_robot_id,
+                     num_robots=info.num_robots if cfg.use_robot_id else 0)

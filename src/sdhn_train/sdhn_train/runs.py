@@ -1,0 +1,84 @@
+"""What every training run shares, in-process or on the ROS trainer node: seeding (the one place),
+the metrics log, episode metrics, and the P_H snapshots ``sdhn_train.analysis`` plots.
+"""
+
+from __future__ import annotations
+
+import csv
+import random
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+import torch
+
+from sdhn_sim.envs.api import EpisodeStats
+from sdhn_train.learners.base import HypergraphSamples
+
+PH_DIR = "hypergraph"  # <run>/hypergraph/ph_<step>.npz
+
+
+def seed_everything(seed: int, deterministic: bool, threads: int) -> np.random.Generator:
+    """The one place that seeds: Python, NumPy (returned generator), torch."""
+    random.seed(seed)
+    torch.manual_seed(seed)
+    torch.set_num_threads(threads)
+    torch.use_deterministic_algorithms(deterministic)
+    return np.random.default_rng(seed)
+
+
+def episode_metrics(prefix: str, episodes: list[EpisodeStats]) -> dict[str, float]:
+    if not episodes:
+        return {}
+    out = {
+        f"{prefix}/episodic_return": float(np.mean([e.episode_return for e in episodes])),
+        f"{prefix}/episode_length": float(np.mean([e.length for e in episodes])),
+        f"{prefix}/success_rate": float(np.mean([e.success for e in episodes])),
+        f"{prefix}/collisions": float(np.mean([e.collisions for e in episodes])),
+    }
+    done = [e.makespan for e in episodes if e.makespan is not None]
+    if done:  # makespan of completed episodes only (NC episodes have none)
+        out[f"{prefix}/makespan"] = float(np.mean(done))
+    return out
+
+
+class MetricsLog:
+    """CSV (long format: step, wall_time, tag, value) + optional TensorBoard."""
+
+    def __init__(self, run_dir: Path, tensorboard: bool) -> None:
+        self._f: TextIO = open(run_dir / "metrics.csv", "a", newline="")  # noqa: SIM115
+        self._csv = csv.writer(self._f)
+        if self._f.tell() == 0:
+            self._csv.writerow(["step", "wall_time", "tag", "value"])
+        self._tb: Any = None
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._tb = SummaryWriter(str(run_dir))
+
+    def write(self, step: int, metrics: dict[str, float]) -> None:
+        now = time.time()
+        for tag, value in metrics.items():
+            self._csv.writerow([step, f"{now:.3f}", tag, f"{value:.6g}"])
+            if self._tb is not None:
+                self._tb.add_scalar(tag, value, step)
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+        if self._tb is not None:
+            self._tb.close()
+
+
+def save_ph_snapshot(run_dir: Path, step: int, samples: HypergraphSamples | None) -> Path | None:
+    """Write ``<run>/hypergraph/ph_<step>.npz``: P_H [N, M] of environment 0 at the rollout's last
+    step (``ph_last``) and averaged over the rollout's steps and environments (``ph_mean``).
+    None (nothing written) for critics without hypergraphs."""
+    if samples is None:
+        return None
+    p = samples.p_h  # [T, B, N, M]
+    out = run_dir / PH_DIR / f"ph_{step:012d}.npz"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(out, step=np.int64(step), ph_last=p[-1, 0], ph_mean=p.mean((0, 1)))
+    return out

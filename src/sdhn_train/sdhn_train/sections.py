@@ -1,0 +1,84 @@
+"""The configuration sections every run has (environment, algorithm name, actor, training,
+evaluation, logging), the field helper and the error type. Stdlib only.
+
+The learners own their sections (``ppo``: ``sdhn_train.learners.ppo.PPOConfig``) and every
+algorithm owns one (``sdhn``: ``sdhn_train.algorithms.sdhn.SDHNConfig``, ...);
+``sdhn_train.config.Config`` puts them together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+
+class ConfigError(ValueError):
+    """Invalid configuration; the message names the field and the allowed values."""
+
+
+def opt(default: Any, help: str) -> Any:
+    """A dataclass field with an immutable default and its help string."""
+    return field(default=default, metadata={"help": help})
+
+
+def need(ok: bool, path: str, allowed: str, value: object) -> None:
+    """Raise ConfigError ``path = value is invalid; allowed: ...`` unless ``ok``."""
+    if not ok:
+        raise ConfigError(f"{path} = {value!r} is invalid; allowed: {allowed}")
+
+
+def need_positive(section: str, values: dict[str, int]) -> None:
+    for name, v in values.items():
+        need(v >= 1, f"{section}.{name}", "an integer >= 1", v)
+
+
+class Section(Protocol):
+    """A config section that checks its own values (ConfigError naming the field)."""
+
+    def validate(self) -> None: ...
+
+
+@dataclass
+class EnvConfig:
+    name: str = opt("maif-10", "environment, a name of sdhn_sim.envs.env_names()")
+    num_envs: int = opt(32, "B: environments stepped together in one process")
+    max_steps: int | None = opt(None, "episode step limit; null = the environment's (500 MAIF)")
+
+
+@dataclass
+class AlgoConfig:
+    name: str = opt("sdhn", "algorithm, a name of sdhn_train.algorithms.registry.ALGO_NAMES "
+                            "(sdhn/mappo/dicg: PPO, only the critic differs; qmix/hgcn_mix: "
+                            "value mixing)")
+
+
+@dataclass
+class ActorConfig:
+    hidden_sizes: list[int] = field(default_factory=lambda: [64],
+                                    metadata={"help": "MLP encoder widths before the GRU"})
+    gru_hidden: int = opt(64, "GRU hidden size")
+    use_robot_id: bool = opt(False, "append a one-hot robot id to each local observation")
+
+
+@dataclass
+class TrainConfig:
+    total_steps: int = opt(1_000_000, "team env-steps to train for (summed over B envs)")
+    seed: int = opt(1, "seed of everything (torch, numpy, environments)")
+    deterministic: bool = opt(False, "torch deterministic algorithms")
+    threads: int = opt(1, "torch intra-op threads")
+
+
+@dataclass
+class EvalConfig:
+    interval: int = opt(50_000, "team env-steps between greedy evaluations (0 = never)")
+    episodes: int = opt(16, "fixed evaluation instances (one episode each)")
+    seed: int = opt(12345, "seed of the fixed evaluation instances")
+
+
+@dataclass
+class LogConfig:
+    root: str = opt("runs", "directory holding run directories")
+    run_name: str | None = opt(None, "run directory name; null = <env>__<algo>__<seed>__<time>")
+    checkpoint_interval: int = opt(200_000, "team env-steps between checkpoints (0 = end only)")
+    progress: bool = opt(True, "show a progress bar")
+    tensorboard: bool = opt(True, "write TensorBoard scalars")

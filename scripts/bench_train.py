@@ -3,7 +3,7 @@
 and the share of wall time spent in env stepping, actor forward (acting), critic (target values
 + critic forward/backward/step) and the actor's PPO update.
 
-    PYTHONPATH=src/sdhn_sim:src/sdhn_policy:src/sdhn_train python scripts/bench_train.py \
+    .venv/bin/python scripts/bench_train.py \
         --envs maif-10 maif-20 --algos sdhn mappo --iterations 3
 """
 
@@ -15,12 +15,8 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-for pkg in ("sdhn_sim", "sdhn_policy", "sdhn_train"):
-    sys.path.insert(0, str(ROOT / "src" / pkg))
-
-from sdhn_train.config import Config, set_field, validate  # noqa: E402
-from sdhn_train.trainer import Trainer  # noqa: E402
+from sdhn_train.config import Config, set_field, validate
+from sdhn_train.trainer import Trainer
 
 
 def bench(env: str, algo: str, iterations: int, sets: list[str], threads: int) -> dict[str, float]:

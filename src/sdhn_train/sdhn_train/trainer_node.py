@@ -95,8 +95,9 @@ def declare_parameters(node: Node) -> TrainerParams:
         try:
             values[name] = node.declare_parameter(name, getattr(defaults, name), desc).value
         except (InvalidParameterTypeException, InvalidParameterValueException) as e:
-            raise ConfigError(f"{name}: {str(e).splitlines()[0][:160]}; allowed: "
-                              f"{desc.additional_constraints}") from None
+            detail = str(e).splitlines()[0].split("Reason: ")[-1].removesuffix(f": {name}")[:160]
+            raise ConfigError(f"{name}: {detail}; allowed: {desc.additional_constraints}"
+                              ) from None
     return TrainerParams(**values)
 
 

@@ -5,7 +5,7 @@ end, and whether the MCAP recording is complete. Not a CI test.
     .venv/bin/python scripts/soak.py --minutes 10          # nice it on a shared machine
 
 Recovery time of a kill = from SIGKILL to the first simulator step that has every action again
-(TeamState stamps and missed_actions, so the watcher's own discovery delay does not count).
+(the recorded TeamState stamps and missed_actions, read from the MCAP file after the run).
 RSS "start" is taken once the graph is training (after
 ``--warmup`` seconds), "end" just before the stop; processes restarted in between are compared
 with their own first sample.
@@ -18,21 +18,58 @@ import os
 import random
 import re
 import signal
+import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "test"))
+LAUNCH = [str(REPO / "scripts" / "launch.sh")]
 
-from faults.graph import (  # noqa: E402
-    Watcher,
-    launch_cmd,
-    pids,
-    rss_kb,
-    wait_until,
-)
-from ros.processes import NodeProcess  # noqa: E402
+
+def wait_until(cond: Callable[[], Any], timeout: float, poll: float = 0.5) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(poll)
+    return bool(cond())
+
+
+def rss_kb(pid: int) -> int | None:
+    """Resident set size of ``pid`` in kB (None once it is gone)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def children(parent: int) -> dict[str, int]:
+    """The launcher's live children by node name (sim, trainer, recorder, actor_<i>), read from
+    /proc: the parent pid and the command line each was started with."""
+    out: dict[str, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[1]) != parent or fields[0] == "Z":
+                continue
+            argv = stat.with_name("cmdline").read_bytes().decode(errors="replace").split("\0")
+        except (OSError, IndexError, ValueError):
+            continue
+        exe = next((Path(a).name for a in argv if a in ("sim", "actor", "trainer", "recorder")
+                    or Path(a).name in ("sim", "actor", "trainer", "recorder")), None)
+        if exe is None:
+            continue
+        robot = next((m.group(1) for a in argv if (m := re.match(r"robot_id:=(\d+)$", a))),
+                     None)
+        out[f"actor_{robot}" if exe == "actor" and robot is not None else exe] = \
+            int(stat.parent.name)
+    return out
 
 
 def parse() -> argparse.Namespace:
@@ -63,21 +100,32 @@ def drops_from_logs(run: Path) -> dict[str, dict[str, int]]:
     return out
 
 
-def stamp(msg: object) -> float:
-    h = msg.header.stamp  # type: ignore[attr-defined]
+def stamp(msg: Any) -> float:
+    h = msg.header.stamp
     return float(h.sec + h.nanosec * 1e-9)
 
 
-def recovery(states: list, t_kill: float) -> tuple[float | None, int]:
+def recovery(states: list[Any], t_kill: float) -> tuple[float | None, int]:
     """(sim time of the first step with every action again after the outage, steps in the
-    outage), from the simulator's TeamState stamps and missed_actions counts."""
-    after = [s for s in states if stamp(s.msg) > t_kill and s.msg.step > 0]
-    k = next((i for i, s in enumerate(after) if s.msg.missed_actions), None)
+    outage), from the simulator's recorded TeamState stamps and missed_actions counts."""
+    after = [s for s in states if stamp(s) > t_kill and s.step > 0]
+    k = next((i for i, s in enumerate(after) if s.missed_actions), None)
     if k is None:
         return None, 0
-    back = next((s for s in after[k:] if s.msg.missed_actions == 0), None)
-    missing = sum(1 for s in after[k:] if back is None or stamp(s.msg) < stamp(back.msg))
-    return (None if back is None else stamp(back.msg)), missing
+    back = next((s for s in after[k:] if s.missed_actions == 0), None)
+    missing = sum(1 for s in after[k:] if back is None or stamp(s) < stamp(back))
+    return (None if back is None else stamp(back)), missing
+
+
+def recorded(run: Path) -> tuple[list[Any], list[int], int]:
+    """(TeamState messages, weights versions, episodes) from the run's recording."""
+    from sdhn_sim.recording import read_recording
+
+    rec = read_recording(run / "recording.mcap")
+    states = [m for _, m in rec.decoded("/state")]
+    versions = [int(m.version) for _, m in rec.decoded("policy/weights")]
+    episodes = sum(1 for _ in rec.decoded("/episode"))
+    return states, versions, episodes
 
 
 def main() -> int:
@@ -85,78 +133,81 @@ def main() -> int:
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random().randint(1, 101)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ["PYTHONUNBUFFERED"] = "1"
-    from sdhn_sim.launch import FASTDDS_PROFILE  # the watcher discovers as fast as the children
+    from sdhn_sim.envs import make_env
 
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
     run = (args.run_dir or REPO / f"runs/soak-{time.strftime('%Y%m%d-%H%M%S')}").resolve()
-    from sdhn_sim.launch import team_size
-
-    n = team_size(args.env)
+    n = make_env(args.env).num_robots
     rng = random.Random(args.seed)
-    cmd = launch_cmd(run, f"env={args.env}", "mode=train", "episodes=0", "recorder=true",
-                     "restart.policy=on-failure", "restart.max_restarts=1000",
-                     f"step_deadline={args.step_deadline}", f"seed={args.seed}",
-                     f"trainer.rollout_steps={args.rollout_steps}", "status_interval=10")
+    sets = [f"run_dir={run}", f"env={args.env}", "mode=train", "episodes=0", "recorder=true",
+            "restart.policy=on-failure", "restart.max_restarts=1000",
+            f"step_deadline={args.step_deadline}", f"seed={args.seed}",
+            f"trainer.rollout_steps={args.rollout_steps}", "status_interval=10"]
+    cmd = [*LAUNCH, *(x for item in sets for x in ("--set", item))]
     print(f"[soak] {n} robots on {args.env}, {args.minutes} min, a kill every "
           f"{args.kill_every}s; run dir {run}; ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}")
-    watcher = Watcher("/sdhn", n, name="soak_watcher")
-    launcher = NodeProcess(cmd)
-    seen = watcher.seen
+    run.mkdir(parents=True, exist_ok=True)
+    out = open(run / "soak-launcher.log", "w")  # noqa: SIM115
+    launcher = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
+    expected = {"sim", "trainer", "recorder", *(f"actor_{i}" for i in range(n))}
     kills: list[tuple[str, float]] = []
     try:
         t_boot = time.monotonic()
-        ok = wait_until(lambda: seen.latest_version() >= 1
-                        and all(seen.actions[i] for i in range(n)), 180, poll=0.5)
-        if not ok:
-            print(launcher.output[-3000:])
-            print("[soak] graph never started acting")
+        if not wait_until(lambda: expected <= set(children(launcher.pid)), 180):
+            print(f"[soak] the graph never came up; see {run / 'soak-launcher.log'}")
             return 1
-        print(f"[soak] all {n} actors acting after {time.monotonic() - t_boot:.1f}s")
+        print(f"[soak] all {len(expected)} processes up after {time.monotonic() - t_boot:.1f}s;"
+              f" {args.warmup}s of warm-up")
         time.sleep(args.warmup)
-        rss0 = {k: rss_kb(p) for k, p in pids(launcher).items()}
-        pid0 = dict(pids(launcher))
-        states0 = len(seen.states)
-        t0 = time.monotonic()
+        pid0 = children(launcher.pid)
+        rss0 = {k: rss_kb(p) for k, p in pid0.items()}
+        t0, t0_wall = time.monotonic(), time.time()
         next_kill = t0 + args.kill_every
         trace: dict[str, list[int]] = {k: [v or 0] for k, v in rss0.items()}
         next_sample = t0 + 30.0
         end = t0 + args.minutes * 60
         while time.monotonic() < end:
-            if launcher.proc.poll() is not None:
+            if launcher.poll() is not None:
                 print("[soak] launcher exited early")
                 break
             if time.monotonic() >= next_kill:
                 name = f"actor_{rng.randrange(n)}"
-                pid = pids(launcher)[name]
-                kills.append((name, time.time()))
-                os.kill(pid, signal.SIGKILL)
-                print(f"[soak] t={time.monotonic() - t0:.0f}s killed {name} (pid {pid})")
+                pid = children(launcher.pid).get(name)
+                if pid is not None:
+                    kills.append((name, time.time()))
+                    os.kill(pid, signal.SIGKILL)
+                    print(f"[soak] t={time.monotonic() - t0:.0f}s killed {name} (pid {pid})")
                 next_kill += args.kill_every
             if time.monotonic() >= next_sample:
                 next_sample += 30.0
-                for k, p in pids(launcher).items():
+                for k, p in children(launcher.pid).items():
                     trace.setdefault(k, []).append(rss_kb(p) or 0)
             time.sleep(0.2)
-        wait_until(lambda: all(recovery(seen.states, t)[0] for _, t in kills), 30)
-        now_pids = pids(launcher)
+        time.sleep(min(30.0, args.kill_every))  # let the last kill recover before stopping
+        now_pids = children(launcher.pid)
         rss1 = {k: rss_kb(p) for k, p in now_pids.items()}
-        steps = len(seen.states) - states0
-        missed = sum(int(s.msg.missed_actions) for s in seen.states[states0:])
         elapsed = time.monotonic() - t0
-        launcher.stop(signal.SIGTERM, timeout=60)
     finally:
-        watcher.close()
-        if launcher.proc.poll() is None:
-            launcher.stop(signal.SIGTERM, timeout=60)
+        if launcher.poll() is None:
+            launcher.send_signal(signal.SIGTERM)
+            try:
+                launcher.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                launcher.kill()
+                launcher.wait()
+        out.close()
 
+    states_all, versions, episodes = recorded(run)
+    states = [s for s in states_all if stamp(s) >= t0_wall]
+    steps = len(states)
+    missed = sum(int(s.missed_actions) for s in states)
     print("\n[soak] results")
     print(f"  duration {elapsed:.0f}s: {steps} team steps ({steps / elapsed:.1f}/s), "
-          f"{missed} missed actions, {len(seen.episodes)} episodes, "
-          f"weights v{seen.latest_version()}")
+          f"{missed} missed actions, {episodes} episodes, "
+          f"weights v{max(versions, default=0)}")
     print(f"  {'kill':<10} {'recovery_s':>10} {'steps_missing':>13}")
     rec = []
     for name, t in kills:
-        back, missing = recovery(seen.states, t)
+        back, missing = recovery(states, t)
         rec.append(None if back is None else back - t)
         print(f"  {name:<10} {('never' if back is None else f'{back - t:.2f}'):>10} "
               f"{missing:>13}")
@@ -201,8 +252,10 @@ def main() -> int:
               + (f" ({r.truncated.line()})" if r.truncated else ""))
     else:
         print("  MCAP: none written")
-    codes = next((ln for ln in launcher.lines if "exit codes:" in ln), "(no exit line)")
-    print(f"  launcher: {codes.strip()}")
+    print(f"  launcher exit code: {launcher.returncode}")
+    if not steps:
+        print("  no simulator step was recorded after the warm-up: the graph never acted")
+        return 1
     return 0
 
 

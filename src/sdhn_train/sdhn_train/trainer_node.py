@@ -42,11 +42,17 @@ from sdhn_msgs.msg import (
     TeamState,
 )
 from sdhn_sim.base_node import ConfigError, run_node
-from sdhn_sim.envs.registry import env_names
+from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
+from sdhn_sim.envs.registry import env_names, make_env
 from sdhn_sim.qos import LATCHED, SENSOR, STEP
+from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, apply_dict, load_yaml, validate
 from sdhn_train.config import ConfigError as TrainConfigError
+from sdhn_train.envinfo import EnvInfo
+from sdhn_train.learners.base import NonFiniteLossError
+from sdhn_train.runs import MetricsLog, episode_metrics
+from sdhn_train.stream_learner import HypergraphSample, StreamLearner
 from sdhn_train.transitions import AssembledRollout, TransitionAssembler
 
 QUEUE_ROLLOUTS = 4  # rollouts waiting for the learner; beyond that the oldest is dropped
@@ -132,15 +138,9 @@ def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path
     return cfg
 
 
-def open_learner(p: TrainerParams, cfg: Config) -> tuple[Any, Any, Path | None]:
-    """(StreamLearner, env, the checkpoint resumed from or None) for the node's run_dir; a fresh
-    run writes its version-1 checkpoint. ConfigError for a run_dir that cannot be used."""
-    # Heavy imports here, after the parameters are checked, so a bad parameter fails fast.
-    from sdhn_sim.envs import make_env
-    from sdhn_train import checkpoint as ckpt
-    from sdhn_train.envinfo import EnvInfo
-    from sdhn_train.stream_learner import StreamLearner
-
+def open_learner(p: TrainerParams, cfg: Config) -> tuple[StreamLearner, BatchedEnv, Path | None]:
+    """(learner, env, the checkpoint resumed from or None) for the node's run_dir; a fresh run
+    writes its version-1 checkpoint. ConfigError for a run_dir that cannot be used."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
     run_dir = Path(p.run_dir or f"runs/{p.env}__{p.algo}__{p.seed}__ros-{stamp}")
     if ckpt.latest_checkpoint(run_dir) is not None and not p.resume:
@@ -280,9 +280,6 @@ class TrainerNode(Node):
         return len(blob.payload), time.perf_counter() - t0
 
     def learn_loop(self) -> None:
-        from sdhn_train.learners.base import NonFiniteLossError
-        from sdhn_train.runs import MetricsLog, episode_metrics
-
         log = MetricsLog(self.run_dir, self.learner.cfg.log.tensorboard)
         try:
             while not self._stop.is_set():
@@ -316,7 +313,7 @@ class TrainerNode(Node):
         finally:
             log.close()
 
-    def publish_hypergraph(self, g: Any, version: int) -> None:
+    def publish_hypergraph(self, g: HypergraphSample, version: int) -> None:
         n, m = g.p_h.shape
         msg = Hypergraph(episode=g.episode, step=g.step, num_robots=n, num_hyperedges=m,
                          skewness=g.skewness, policy_version=version)
@@ -336,9 +333,7 @@ def _floats(values: Any) -> np.ndarray:
     return np.frombuffer(values, dtype=np.float32) if len(values) else np.zeros(0, np.float32)
 
 
-def _stats(m: EpisodeSummary) -> Any:
-    from sdhn_sim.envs.api import EpisodeStats
-
+def _stats(m: EpisodeSummary) -> EpisodeStats:
     return EpisodeStats(0, float(m.episode_return), int(m.length),
                         int(m.makespan) if m.completed else None, bool(m.completed),
                         int(m.collisions), float(m.formation_error))

@@ -95,7 +95,7 @@ def echo_main(robot: int, ns: str) -> int:
     from rclpy.experimental import EventsExecutor
 
     from sdhn_msgs.msg import RobotAction, RobotObservation
-    from sdhn_sim.qos import STEP
+    from sdhn_sim.ros.qos import STEP
 
     rclpy.init()
     node = rclpy.create_node("echo", namespace=f"{ns}/robot_{robot}")
@@ -124,7 +124,7 @@ def ceiling(n: int, steps: int) -> float:
     from rclpy.experimental import EventsExecutor
 
     from sdhn_msgs.msg import RobotAction, RobotObservation
-    from sdhn_sim.qos import STEP
+    from sdhn_sim.ros.qos import STEP
 
     ns = "/pingpong"
     echoes = [spawn([sys.executable, __file__, "--echo", str(i), "--ns", ns]) for i in range(n)]

@@ -27,7 +27,7 @@ import numpy as np
 from foxglove.channels import SceneUpdateChannel
 
 from sdhn_sim.envs import make_single_env
-from sdhn_sim.viz_scene import METRICS_SCHEMA, TOPIC_METRICS, TOPIC_SCENE, VizRenderer
+from sdhn_sim.viz.scene import METRICS_SCHEMA, TOPIC_METRICS, TOPIC_SCENE, VizRenderer
 
 
 def team_messages(env_name: str, count: int) -> list[Any]:

@@ -85,11 +85,13 @@ def main() -> int:
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random().randint(1, 101)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ["PYTHONUNBUFFERED"] = "1"
-    from sdhn_sim.launch import FASTDDS_PROFILE  # the watcher discovers as fast as the children
+    from sdhn_sim.launch.supervisor import (
+        FASTDDS_PROFILE,  # the watcher discovers as fast as the children
+    )
 
     os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
     run = (args.run_dir or REPO / f"runs/soak-{time.strftime('%Y%m%d-%H%M%S')}").resolve()
-    from sdhn_sim.launch import team_size
+    from sdhn_sim.launch.supervisor import team_size
 
     n = team_size(args.env)
     rng = random.Random(args.seed)
@@ -186,7 +188,7 @@ def main() -> int:
     if status:
         print(f"  trainer's last status: {status[-1].split('status: ', 1)[1]}")
     print(f"\n  dropped messages per process: {drops_from_logs(run) or 'none'}")
-    from sdhn_sim.recording import read_recording
+    from sdhn_sim.recording.reader import read_recording
 
     mcap = run / "recording.mcap"
     if mcap.exists():

@@ -88,7 +88,7 @@ class Watcher(Peer):
 
     def __init__(self, ns: str, num_robots: int, name: str = "fault_watcher") -> None:
         from sdhn_msgs.msg import EpisodeSummary, PolicyWeights, RobotAction, TeamState
-        from sdhn_sim.qos import LATCHED, STEP
+        from sdhn_sim.ros.qos import LATCHED, STEP
 
         super().__init__(name)
         self.ns = ns.rstrip("/")

@@ -22,7 +22,7 @@ from ros.processes import node_processes
 
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation, TeamState
 from sdhn_policy.weights import ActorSpec, decode_weights, encode_actor, save_actor_file
-from sdhn_sim.qos import LATCHED, STEP
+from sdhn_sim.ros.qos import LATCHED, STEP
 
 from .graph import Peer, wait_until
 from .hostile import action_msg, hostile_weights, obs_msg, weights_msg

@@ -21,9 +21,9 @@ from rclpy.serialization import serialize_message
 from ros.processes import ROS2, NodeProcess, node_processes
 from ros.team_stream import team_stream
 
-from sdhn_sim.mcap_writer import CHUNK_BYTES
-from sdhn_sim.qos import STEP
-from sdhn_sim.recording import decode, read_recording
+from sdhn_sim.recording.reader import decode, read_recording
+from sdhn_sim.recording.writer import CHUNK_BYTES
+from sdhn_sim.ros.qos import STEP
 from sdhn_train.remote_learner import latest_checkpoint
 
 from .graph import (

@@ -105,7 +105,7 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     from rclpy.experimental import EventsExecutor
 
     from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
-    from sdhn_sim.qos import STEP
+    from sdhn_sim.ros.qos import STEP
 
     context = Context()
     rclpy.init(context=context)

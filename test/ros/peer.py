@@ -20,7 +20,7 @@ from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 
 from sdhn_msgs.msg import RobotAction, RobotObservation
-from sdhn_sim.qos import STEP
+from sdhn_sim.ros.qos import STEP
 
 
 def observation(step: int) -> RobotObservation:

@@ -19,13 +19,13 @@ import rclpy
 from rclpy.context import Context
 from rosbags.highlevel import AnyReader
 
-from sdhn_sim.mcap_writer import McapRosWriter
-from sdhn_sim.qos import LATCHED, SENSOR, STEP
-from sdhn_sim.recording import (
+from sdhn_sim.recording.reader import (
     read_recording,
     summaries_from_messages,
     summaries_from_states,
 )
+from sdhn_sim.recording.writer import McapRosWriter
+from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
 from .processes import ROS2, node_processes
 from .team_stream import ENV, hypergraph_message, team_stream, weights_message
@@ -190,7 +190,7 @@ def test_truncated_recording_reports_one_line_and_keeps_the_readable_part(
 
 
 def test_recorder_never_overwrites_an_existing_file(tmp_path: Path) -> None:
-    from sdhn_sim.recorder_node import fresh_path
+    from sdhn_sim.recording.recorder_node import fresh_path
 
     first = tmp_path / "a.mcap"
     assert fresh_path(first) == first

@@ -6,7 +6,7 @@ import json
 import re
 from pathlib import Path
 
-from sdhn_sim.viz_scene import (
+from sdhn_sim.viz.scene import (
     EPISODE_SCHEMA,
     METRICS_SCHEMA,
     TOPIC_EPISODES,

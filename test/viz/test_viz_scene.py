@@ -13,7 +13,7 @@ import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 from sdhn_sim.envs import make_single_env
-from sdhn_sim.viz_scene import (
+from sdhn_sim.viz.scene import (
     TOPIC_EPISODES,
     TOPIC_HYPERGRAPH,
     TOPIC_METRICS,

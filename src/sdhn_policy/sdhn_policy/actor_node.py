@@ -24,8 +24,8 @@ from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.actor_core import ActorCore, Decision, Drop, weights_error_kind
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.weights import WeightsError
-from sdhn_sim.base_node import ConfigError, run_node
-from sdhn_sim.qos import LATCHED, STEP
+from sdhn_sim.ros.qos import LATCHED, STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
 
 
 class ActorNode(Node):

@@ -27,9 +27,9 @@ from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 
 from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
-from sdhn_sim.base_node import ConfigError, run_node
 from sdhn_sim.lockstep import EpisodeResult, Frame, LockstepSim, SimConfig, SimConfigError
-from sdhn_sim.qos import STEP
+from sdhn_sim.ros.qos import STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
 
 LOG_EVERY_S = 2.0  # period of the progress line
 

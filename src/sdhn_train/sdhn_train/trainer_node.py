@@ -36,8 +36,8 @@ from sdhn_msgs.msg import (
     RobotObservation,
     TeamState,
 )
-from sdhn_sim.base_node import ConfigError, run_node
-from sdhn_sim.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_train.config import ALGO_NAMES, ENV_NAMES, Config, apply_dict, load_yaml, validate
 from sdhn_train.config import ConfigError as TrainConfigError
 from sdhn_train.transitions import AssembledRollout, TransitionAssembler

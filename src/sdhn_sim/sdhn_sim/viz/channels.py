@@ -34,7 +34,7 @@ from typing import Any
 from foxglove.messages import RawImage, SceneUpdate
 from mcap.writer import Writer
 
-from sdhn_sim.viz_scene import (
+from sdhn_sim.viz.scene import (
     EPISODE_SCHEMA,
     METRICS_SCHEMA,
     TOPIC_EPISODES,

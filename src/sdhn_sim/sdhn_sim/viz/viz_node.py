@@ -27,10 +27,10 @@ from rclpy.context import Context
 from rclpy.node import Node
 
 from sdhn_msgs.msg import EpisodeSummary, Hypergraph, TeamState
-from sdhn_sim.base_node import ConfigError, run_node
 from sdhn_sim.envs.registry import env_names
-from sdhn_sim.qos import SENSOR, STEP
-from sdhn_sim.viz_scene import (
+from sdhn_sim.ros.qos import SENSOR, STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
+from sdhn_sim.viz.scene import (
     EPISODE_SCHEMA,
     METRICS_SCHEMA,
     TOPIC_EPISODES,

@@ -15,7 +15,7 @@ from typing import Any, BinaryIO, cast
 from mcap.writer import CompressionType, Writer
 from rclpy.serialization import serialize_message
 
-from sdhn_sim.mcap_schema import ros2msg_schema
+from sdhn_sim.recording.schema import ros2msg_schema
 
 CHUNK_BYTES = 256 * 1024
 

@@ -23,7 +23,6 @@ recording that missed step 0) the frames show robots on a blank grid.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +33,8 @@ import numpy.typing as npt
 from mcap.records import Channel, Chunk, Header, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rclpy.serialization import deserialize_message
+
+from sdhn_sim.recording.schema import message_class
 
 
 @dataclass(frozen=True)
@@ -88,11 +89,6 @@ class Recording:
 
 class NotMcapError(ValueError):
     """The file is not an MCAP recording at all."""
-
-
-def message_class(type_name: str) -> Any:
-    package, kind, name = type_name.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
 def decode(m: RawMessage) -> Any:
@@ -160,7 +156,7 @@ def read_recording(path: str | Path) -> Recording:
 
 def viz_topics(rec: Recording) -> dict[str, int]:
     """Message counts of the viz channels (``/viz/...``, protobuf/JSON) the recording holds."""
-    from sdhn_sim.viz_channels import is_viz_channel
+    from sdhn_sim.viz.channels import is_viz_channel
 
     found = {c.topic: 0 for c in rec.channels.values()
              if is_viz_channel(c.topic, c.message_encoding)}
@@ -180,7 +176,7 @@ def team_namespace(rec: Recording) -> str | None:
 
 def team_kind(topic: str, type_name: str, encoding: str, ns: str) -> str | None:
     """'state' / 'hypergraph' / 'episode' for the team's own CDR topics of those types."""
-    from sdhn_sim.viz_channels import KINDS
+    from sdhn_sim.viz.channels import KINDS
 
     kind = KINDS.get(type_name) if encoding == "cdr" else None
     if kind is None or topic != f"{ns}/{kind}":
@@ -200,10 +196,10 @@ class VizUpgrade:
 def write_with_viz(rec: Recording, out: Path, chunk_bytes: int = 256 * 1024) -> VizUpgrade:
     """Write ``out``: every message of ``rec`` (same schemas, channels, times, sequence numbers,
     in file order) plus the viz channels derived from the team's state, hypergraph and episode
-    messages (``sdhn_sim.viz_channels``), each right after its source message."""
+    messages (``sdhn_sim.viz.channels``), each right after its source message."""
     from mcap.writer import CompressionType, Writer
 
-    from sdhn_sim.viz_channels import VizDeriver, VizMcapChannels
+    from sdhn_sim.viz.channels import VizDeriver, VizMcapChannels
 
     ns = team_namespace(rec)
     deriver = VizDeriver()

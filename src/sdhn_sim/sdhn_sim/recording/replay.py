@@ -7,7 +7,7 @@
                    (1 = as recorded), with the contract's QoS (policy/weights latched, hypergraph
                    best effort, the rest STEP). Waits up to --wait seconds for subscribers first.
 --export-episode K PNG frames (frame_<step>.png) of episode K rendered from the recorded TeamState
---out DIR          positions, on the MAIF map matched from the start cells (sdhn_sim.recording).
+--out DIR          positions, on the MAIF map of the recorded instance id (recording.reader).
 --add-viz          write a copy with the viz channels (/viz/scene, /viz/hypergraph,
 --out NEW.mcap     /viz/hypergraph/p_h, /viz/metrics, /viz/episodes) derived from the recorded
                    team messages, for a recording made with viz:=false (default NEW:
@@ -33,7 +33,7 @@ import threading
 import time
 from pathlib import Path
 
-from sdhn_sim.recording import (
+from sdhn_sim.recording.reader import (
     NotMcapError,
     Recording,
     episode_frames,
@@ -160,8 +160,8 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
     """Serve the viz channels derived from ``rec`` on a Foxglove WebSocket, paced by log time."""
     import foxglove
 
-    from sdhn_sim.recording import decode, team_kind, team_namespace
-    from sdhn_sim.viz_channels import VIZ_TOPICS, VizDeriver, channel_specs
+    from sdhn_sim.recording.reader import decode, team_kind, team_namespace
+    from sdhn_sim.viz.channels import VIZ_TOPICS, VizDeriver, channel_specs
 
     ns = team_namespace(rec)
     if ns is None:
@@ -245,8 +245,8 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
     import rclpy
     from rclpy.context import Context
 
-    from sdhn_sim.qos import LATCHED, SENSOR, STEP
-    from sdhn_sim.recording import message_class
+    from sdhn_sim.recording.schema import message_class
+    from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
     context = Context()
     rclpy.init(context=context)

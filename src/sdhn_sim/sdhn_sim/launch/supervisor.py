@@ -49,7 +49,7 @@ from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names
 
 MODES = ("deploy", "train")
-FASTDDS_PROFILE = Path(__file__).resolve().parent / "data" / "fastdds.xml"
+FASTDDS_PROFILE = Path(__file__).resolve().parent.parent / "data" / "fastdds.xml"
 RESTART_POLICIES = ("never", "on-failure")
 
 

@@ -1,7 +1,8 @@
 """Recorder node ``sdhn_sim recorder``: every topic under ``team_ns`` into one MCAP file.
 
 Messages are taken as raw CDR (subscriptions with ``raw=True``, no deserialisation) and written
-with ``ros2msg`` schemas by :class:`sdhn_sim.mcap_writer.McapRosWriter`; log time = receive time.
+with ``ros2msg`` schemas by :class:`sdhn_sim.recording.writer.McapRosWriter`; log time =
+receive time.
 
 Which topics, with which QoS:
 - The contract's topics are subscribed from the start, with their contract profile, so nothing
@@ -21,7 +22,7 @@ last complete chunk (``sdhn_sim replay`` says where it stops).
 Viz channels (parameter ``viz``, default true): the team's ``state``, ``hypergraph`` and
 ``episode`` messages are also turned into the viz node's Foxglove channels (``/viz/scene``,
 ``/viz/hypergraph``, ``/viz/hypergraph/p_h``, ``/viz/metrics``, ``/viz/episodes``; protobuf and
-JSON, see ``sdhn_sim.viz_channels``) in the same file, so a recording opens as pictures. The
+JSON, see ``sdhn_sim.viz.channels``) in the same file, so a recording opens as pictures. The
 subscription callback only queues the raw CDR (a few microseconds); a worker thread deserialises,
 renders and writes (under the writer's lock), each viz message with its source's log time. If the
 worker falls ``VIZ_QUEUE`` messages behind, viz for the newest is skipped and counted: the raw
@@ -32,7 +33,6 @@ recording.
 from __future__ import annotations
 
 import functools
-import importlib
 import queue
 import re
 import threading
@@ -47,12 +47,12 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
-from sdhn_sim.base_node import ConfigError, run_node
-from sdhn_sim.mcap_schema import ros2msg_schema
-from sdhn_sim.mcap_writer import McapRosWriter
-from sdhn_sim.qos import LATCHED, SENSOR, STEP
-from sdhn_sim.recording import fresh_path
-from sdhn_sim.viz_channels import KINDS, VizDeriver, VizMcapChannels
+from sdhn_sim.recording.reader import fresh_path
+from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg_schema
+from sdhn_sim.recording.writer import McapRosWriter
+from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
+from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5
 VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
@@ -68,12 +68,6 @@ ROBOT_TOPICS = {
     "action": "sdhn_msgs/msg/RobotAction",
 }
 _ROBOT = re.compile(r"^robot_(\d+)/")
-
-
-def message_class(type_name: str) -> Any:
-    """'pkg/msg/Type' -> the Python message class; ImportError/AttributeError if unknown."""
-    package, kind, name = type_name.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
 def profile_for(publisher_qos: list[QoSProfile]) -> QoSProfile:
@@ -192,7 +186,7 @@ class RecorderNode(Node):
         try:
             cls = message_class(type_name)
             ros2msg_schema(type_name)  # the schema must be writable too
-        except (ImportError, AttributeError, ValueError, FileNotFoundError) as e:
+        except (UnknownMessageType, ValueError, FileNotFoundError) as e:
             self.skipped.add(topic)
             self.get_logger().warning(f"not recording {topic} ({type_name}): {e}")
             return

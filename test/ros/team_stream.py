@@ -40,6 +40,7 @@ def team_stream(episodes: int, max_steps: int, seed: int = 0, version: int = 1) 
     n = env.num_robots
     for e in range(episodes):
         obs, state = env.reset()
+        instance = env.instance_id
         reward, term, trunc, t, ret = 0.0, False, False, 0, 0.0
         while True:
             positions = np.asarray(env.positions, np.int32).reshape(-1)
@@ -50,7 +51,8 @@ def team_stream(episodes: int, max_steps: int, seed: int = 0, version: int = 1) 
             yield Out("state", TeamState(
                 env_name=ENV, episode=e, step=t, num_robots=n, state=floats(state),
                 positions=array.array("i", positions.tobytes()), team_reward=reward,
-                terminated=term, truncated=trunc, makespan_so_far=t, missed_actions=0))
+                terminated=term, truncated=trunc, makespan_so_far=t, missed_actions=0,
+                instance_id=instance))
             if term or trunc:
                 break
             actions = rng.integers(0, env.num_actions, n)
@@ -68,7 +70,7 @@ def team_stream(episodes: int, max_steps: int, seed: int = 0, version: int = 1) 
             env_name=ENV, episode=e, length=ep.length, completed=ep.success,
             makespan=ep.makespan or 0, episode_return=ep.episode_return,
             collisions=ep.collisions, formation_error=ep.formation_error, missed_actions=0,
-            policy_version=version))
+            policy_version=version, instance_id=instance))
 
 
 def weights_message(version: int) -> PolicyWeights:

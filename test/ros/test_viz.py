@@ -26,7 +26,7 @@ from rclpy.context import Context
 from sdhn_msgs.msg import EpisodeSummary, Hypergraph, TeamState
 from sdhn_sim.envs import make_single_env
 from sdhn_sim.ros.qos import SENSOR, STEP
-from sdhn_sim.viz.scene import map_to_cell
+from sdhn_sim.viz.draw import map_to_cell
 
 from .processes import ROS2, NodeProcess, node_processes
 

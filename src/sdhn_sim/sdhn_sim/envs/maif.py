@@ -394,9 +394,5 @@ class MaifEnv:
         """[B] instance id each env is playing."""
         return self._instance.copy()
 
-    @property
-    def step_count(self) -> IntArray:
-        return self._t.copy()
-
     def render_rgb(self, b: int = 0, cell_px: int = 8) -> npt.NDArray[np.uint8]:
         return self.world(b).render_rgb(cell_px)

@@ -245,7 +245,9 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
     import rclpy
     from rclpy.context import Context
 
+    from sdhn_sim.recording.reader import current_cdr
     from sdhn_sim.recording.schema import message_class
+    from sdhn_sim.ros import topics
     from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
     context = Context()
@@ -256,8 +258,8 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
     try:
         for m in messages:
             if m.topic not in pubs:
-                profile = (LATCHED if m.topic.endswith("/policy/weights") else
-                           SENSOR if m.topic.endswith("/hypergraph") else STEP)
+                profile = (LATCHED if topics.team_of(m.topic, topics.WEIGHTS) else
+                           SENSOR if topics.team_of(m.topic, topics.HYPERGRAPH) else STEP)
                 pubs[m.topic] = node.create_publisher(message_class(m.type_name), m.topic, profile)
         deadline = time.monotonic() + wait
         while time.monotonic() < deadline and any(p.get_subscription_count() == 0
@@ -271,7 +273,7 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
             delay = (m.log_time_ns - t0) / 1e9 / rate - (time.monotonic() - start)
             if delay > 0:
                 time.sleep(delay)
-            pubs[m.topic].publish(m.data)
+            pubs[m.topic].publish(current_cdr(m))
         print(f"republished {len(ordered)} messages on {len(pubs)} topics in "
               f"{time.monotonic() - start:.2f} s (rate {rate}x)")
         time.sleep(0.2)  # let reliable writers hand the last samples over

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sdhn_sim.ros import topics
+
 ROOT = Path(__file__).resolve().parents[1]
 ROS2 = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run"]
 ENVS = {4: "maif-tiny", 10: "maif-10", 20: "maif-20"}
@@ -98,15 +100,16 @@ def echo_main(robot: int, ns: str) -> int:
     from sdhn_sim.ros.qos import STEP
 
     rclpy.init()
-    node = rclpy.create_node("echo", namespace=f"{ns}/robot_{robot}")
-    pub = node.create_publisher(RobotAction, f"{ns}/robot_{robot}/action", STEP)
+    node = rclpy.create_node("echo", namespace=topics.absolute(ns, topics.robot(robot)))
+    pub = node.create_publisher(RobotAction, topics.absolute(ns, topics.robot_action(robot)), STEP)
 
     def on_obs(m: RobotObservation) -> None:
         a = RobotAction()
         a.episode, a.step, a.robot_id = m.episode, m.step, m.robot_id
         pub.publish(a)
 
-    node.create_subscription(RobotObservation, f"{ns}/robot_{robot}/obs", on_obs, STEP)
+    node.create_subscription(RobotObservation, topics.absolute(ns, topics.robot_obs(robot)), on_obs,
+                             STEP)
     ex = EventsExecutor()
     ex.add_node(node)
     print("ready", flush=True)
@@ -131,7 +134,8 @@ def ceiling(n: int, steps: int) -> float:
     ctx = Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node("master", context=ctx)
-    pubs = [node.create_publisher(RobotObservation, f"{ns}/robot_{i}/obs", STEP) for i in range(n)]
+    pubs = [node.create_publisher(RobotObservation, topics.absolute(ns, topics.robot_obs(i)), STEP)
+            for i in range(n)]
     got: set[int] = set()
     step = [0]
     obs = array.array("f", np.zeros(57, np.float32).tobytes())
@@ -151,7 +155,8 @@ def ceiling(n: int, steps: int) -> float:
             step[0] += 1
             publish()
 
-    subs = [node.create_subscription(RobotAction, f"{ns}/robot_{i}/action", on_action, STEP)
+    subs = [node.create_subscription(RobotAction, topics.absolute(ns, topics.robot_action(i)),
+                                     on_action, STEP)
             for i in range(n)]
     ex = EventsExecutor(context=ctx)
     ex.add_node(node)

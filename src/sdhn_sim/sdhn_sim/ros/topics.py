@@ -41,10 +41,16 @@ class NamespaceError(ValueError):
     """A team namespace that breaks the rule; the message says the rule."""
 
 
+def is_team_ns(value: object) -> bool:
+    """Whether ``value`` follows the one namespace rule (see :data:`TEAM_NS_RULE`)."""
+    return isinstance(value, str) and bool(_TEAM_NS.match(value)) and "__" not in value
+
+
 def check_team_ns(value: object) -> str:
     """The one namespace rule (see :data:`TEAM_NS_RULE`); returns ``value`` unchanged."""
-    if not isinstance(value, str) or not _TEAM_NS.match(value) or "__" in value:
+    if not is_team_ns(value):
         raise NamespaceError(f"team_ns: got {value!r}; allowed: {TEAM_NS_RULE}")
+    assert isinstance(value, str)
     return value
 
 

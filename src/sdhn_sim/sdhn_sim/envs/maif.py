@@ -1,6 +1,6 @@
 """MAIF (Moving Agents In Formation), batched: B environments x N robots per NumPy call.
 
-Implements ``/work/shared/spec/maif.md``. Axis convention: see ``maif_instances`` (x = column to
+The rules as implemented are described in ``docs/maif.md``. Axis convention: see ``maif_instances`` (x = column to
 the right, y = row downwards, ``up`` = y - 1). Actions: 0 stay, 1 up, 2 down, 3 left, 4 right.
 
 Internally every environment has a padded ``(size + 6) x (size + 6)`` int8 canvas (a border of

@@ -30,11 +30,11 @@ from pathlib import Path
 import numpy as np
 
 from sdhn_sim.ros import topics
+from sdhn_sim.ros.status import EventReader
 
 ROOT = Path(__file__).resolve().parents[1]
 ROS2 = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run"]
 ENVS = {4: "maif-tiny", 10: "maif-10", 20: "maif-20"}
-DONE_RE = re.compile(r"done: \d+ episodes, (\d+) steps in ([\d.]+)s")
 
 
 def make_weights(out: Path) -> Path:
@@ -202,15 +202,18 @@ def deploy_rate(n: int, steps: int, weights: Path, record: bool, tmp: Path) -> f
     actors = [spawn([*ROS2, "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:=/sdhn/robot_{i}",
                      "-p", f"robot_id:={i}", "-p", f"num_robots:={n}", "-p",
                      f"weights_file:={weights}", "-p", "greedy:=true"]) for i in range(n)]
+    events = tmp / f"sim-events-{n}-{int(record)}.jsonl"
+    events.unlink(missing_ok=True)
     sim = spawn([*ROS2, "sdhn_sim", "sim", "--ros-args", "-r", "__ns:=/sdhn", "-p", f"env:={env}",
                  "-p", "episodes:=1", "-p", f"max_steps:={steps}", "-p",
-                 f"extra_subscribers:={int(record)}"])
+                 f"extra_subscribers:={int(record)}", "-p", f"events_file:={events}"])
     try:
-        ok, lines = wait_line(sim, "missed actions, drops", timeout=180)
-        m = next((DONE_RE.search(line) for line in lines if DONE_RE.search(line)), None)
-        if not ok or m is None:
+        out, _ = sim.communicate(timeout=180)  # the sim exits 0 after its episode
+        ok, lines = sim.returncode == 0, out.decode(errors="replace").splitlines()
+        done = [e for e in EventReader(events).new() if e["event"] == "done"]
+        if not ok or not done:
             raise RuntimeError("sim did not finish:\n" + "\n".join(lines[-20:]))
-        return int(m.group(1)) / float(m.group(2))
+        return float(done[-1]["steps"]) / float(done[-1]["elapsed_s"])
     finally:
         stop([sim, *actors, *procs])
 

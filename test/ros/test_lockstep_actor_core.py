@@ -49,6 +49,23 @@ def test_missing_actions_become_stay_and_are_counted() -> None:
     assert sim.finished
 
 
+@pytest.mark.parametrize("env,instance", [("maif-tiny", 7), ("maif-tiny", -1), ("rware-3", -1)])
+def test_frames_and_results_carry_the_world_identity(env: str, instance: int) -> None:
+    """Every frame and episode result names the world it shows (MAIF instance id; -1 for RWARE),
+    and positions come from the single-env view for both kinds of world."""
+    sim = LockstepSim(SimConfig(env=env, seed=3, instance=instance, max_steps=3))
+    frame = sim.reset()
+    want = sim.env.instance_id
+    assert (want == instance) if instance >= 0 else (want >= 0) == env.startswith("maif")
+    result = None
+    while result is None:
+        assert frame.instance_id == want
+        assert frame.positions.shape == (sim.num_robots, 2)
+        assert np.array_equal(frame.positions, sim.env.positions)
+        frame, result = sim.advance()
+    assert result.instance_id == want and frame.instance_id == want
+
+
 def test_malformed_actions_are_dropped_by_kind() -> None:
     sim = LockstepSim(SimConfig(env="maif-tiny"))
     f = sim.reset()

@@ -1,6 +1,6 @@
 """Simulator node ``sdhn_sim sim``: one environment stepped in lock-step with N actor processes.
 
-Runs in the team namespace (``-r __ns:=/sdhn``) and names its topics relative to it
+Runs in the team namespace (``/sdhn``, or ``-r __ns:=/other``) and names its topics relative to it
 (:mod:`sdhn_sim.ros.topics`): publishes ``robot_<i>/obs`` (one per robot), ``state`` and
 ``episode``; subscribes to every ``robot_<i>/action``. Before step 0 it waits
 until every obs topic has a subscriber (plus ``extra_subscribers``) and every action topic a
@@ -66,7 +66,12 @@ def sim_config(p: dict[str, Any]) -> SimConfig:
 
 class SimNode(Node):
     def __init__(self, context: Context) -> None:
-        super().__init__("sim", context=context)
+        # The team namespace is the node's: /sdhn unless remapped (-r __ns:=/other).
+        super().__init__("sim", namespace=topics.DEFAULT_TEAM_NS, context=context)
+        try:
+            topics.check_team_ns(self.get_namespace())
+        except topics.NamespaceError as e:
+            raise ConfigError(f"{e} (the simulator's namespace, -r __ns:=...)") from None
         p = declare(self, PARAMETERS)
         try:
             self.sim = LockstepSim(sim_config(p))

@@ -75,7 +75,7 @@ class McapRosWriter:
 
     @property
     def mcap(self) -> Writer:
-        """The underlying ``mcap`` writer, to add channels of other encodings (viz_channels)."""
+        """The underlying ``mcap`` writer, to add channels of other encodings (viz.channels)."""
         return self._writer
 
     def _channel(self, topic: str, type_name: str) -> int:

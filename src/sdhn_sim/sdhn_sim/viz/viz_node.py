@@ -3,7 +3,8 @@
 Subscribes to ``{team_ns}/state``, ``{team_ns}/hypergraph`` and ``{team_ns}/episode`` and serves a
 Foxglove WebSocket (Foxglove SDK for Python; protobuf ``foxglove.*`` schemas and JSON) with channels
 ``/viz/scene``, ``/viz/hypergraph`` (SceneUpdate), ``/viz/hypergraph/p_h`` (RawImage),
-``/viz/metrics`` and ``/viz/episodes`` (JSON). Drawing lives in ``viz_scene`` (ROS-free).
+``/viz/metrics`` and ``/viz/episodes`` (JSON). Parsing, drawing and state live in ``world``,
+``draw`` and ``renderer`` (ROS-free).
 
 Nothing is built or encoded for a channel no client subscribes to (``Channel.has_sinks``): the
 callbacks only validate and keep a short trail. The scene is sent at most ``max_rate`` times per

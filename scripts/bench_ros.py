@@ -29,10 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.status import EventReader
+
 ROOT = Path(__file__).resolve().parents[1]
 ROS2 = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run"]
 ENVS = {4: "maif-tiny", 10: "maif-10", 20: "maif-20"}
-DONE_RE = re.compile(r"done: \d+ episodes, (\d+) steps in ([\d.]+)s")
 
 
 def make_weights(out: Path) -> Path:
@@ -95,18 +97,19 @@ def echo_main(robot: int, ns: str) -> int:
     from rclpy.experimental import EventsExecutor
 
     from sdhn_msgs.msg import RobotAction, RobotObservation
-    from sdhn_sim.qos import STEP
+    from sdhn_sim.ros.qos import STEP
 
     rclpy.init()
-    node = rclpy.create_node("echo", namespace=f"{ns}/robot_{robot}")
-    pub = node.create_publisher(RobotAction, f"{ns}/robot_{robot}/action", STEP)
+    node = rclpy.create_node("echo", namespace=topics.absolute(ns, topics.robot(robot)))
+    pub = node.create_publisher(RobotAction, topics.absolute(ns, topics.robot_action(robot)), STEP)
 
     def on_obs(m: RobotObservation) -> None:
         a = RobotAction()
         a.episode, a.step, a.robot_id = m.episode, m.step, m.robot_id
         pub.publish(a)
 
-    node.create_subscription(RobotObservation, f"{ns}/robot_{robot}/obs", on_obs, STEP)
+    node.create_subscription(RobotObservation, topics.absolute(ns, topics.robot_obs(robot)), on_obs,
+                             STEP)
     ex = EventsExecutor()
     ex.add_node(node)
     print("ready", flush=True)
@@ -124,14 +127,15 @@ def ceiling(n: int, steps: int) -> float:
     from rclpy.experimental import EventsExecutor
 
     from sdhn_msgs.msg import RobotAction, RobotObservation
-    from sdhn_sim.qos import STEP
+    from sdhn_sim.ros.qos import STEP
 
     ns = "/pingpong"
     echoes = [spawn([sys.executable, __file__, "--echo", str(i), "--ns", ns]) for i in range(n)]
     ctx = Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node("master", context=ctx)
-    pubs = [node.create_publisher(RobotObservation, f"{ns}/robot_{i}/obs", STEP) for i in range(n)]
+    pubs = [node.create_publisher(RobotObservation, topics.absolute(ns, topics.robot_obs(i)), STEP)
+            for i in range(n)]
     got: set[int] = set()
     step = [0]
     obs = array.array("f", np.zeros(57, np.float32).tobytes())
@@ -151,7 +155,8 @@ def ceiling(n: int, steps: int) -> float:
             step[0] += 1
             publish()
 
-    subs = [node.create_subscription(RobotAction, f"{ns}/robot_{i}/action", on_action, STEP)
+    subs = [node.create_subscription(RobotAction, topics.absolute(ns, topics.robot_action(i)),
+                                     on_action, STEP)
             for i in range(n)]
     ex = EventsExecutor(context=ctx)
     ex.add_node(node)
@@ -197,15 +202,18 @@ def deploy_rate(n: int, steps: int, weights: Path, record: bool, tmp: Path) -> f
     actors = [spawn([*ROS2, "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:=/sdhn/robot_{i}",
                      "-p", f"robot_id:={i}", "-p", f"num_robots:={n}", "-p",
                      f"weights_file:={weights}", "-p", "greedy:=true"]) for i in range(n)]
+    events = tmp / f"sim-events-{n}-{int(record)}.jsonl"
+    events.unlink(missing_ok=True)
     sim = spawn([*ROS2, "sdhn_sim", "sim", "--ros-args", "-r", "__ns:=/sdhn", "-p", f"env:={env}",
                  "-p", "episodes:=1", "-p", f"max_steps:={steps}", "-p",
-                 f"extra_subscribers:={int(record)}"])
+                 f"extra_subscribers:={int(record)}", "-p", f"events_file:={events}"])
     try:
-        ok, lines = wait_line(sim, "missed actions, drops", timeout=180)
-        m = next((DONE_RE.search(line) for line in lines if DONE_RE.search(line)), None)
-        if not ok or m is None:
+        out, _ = sim.communicate(timeout=180)  # the sim exits 0 after its episode
+        ok, lines = sim.returncode == 0, out.decode(errors="replace").splitlines()
+        done = [e for e in EventReader(events).new() if e["event"] == "done"]
+        if not ok or not done:
             raise RuntimeError("sim did not finish:\n" + "\n".join(lines[-20:]))
-        return int(m.group(1)) / float(m.group(2))
+        return float(done[-1]["steps"]) / float(done[-1]["elapsed_s"])
     finally:
         stop([sim, *actors, *procs])
 

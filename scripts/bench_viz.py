@@ -27,7 +27,9 @@ import numpy as np
 from foxglove.channels import SceneUpdateChannel
 
 from sdhn_sim.envs import make_single_env
-from sdhn_sim.viz_scene import METRICS_SCHEMA, TOPIC_METRICS, TOPIC_SCENE, VizRenderer
+from sdhn_sim.ros.topics import VIZ_METRICS, VIZ_SCENE
+from sdhn_sim.viz.channels import METRICS_SCHEMA
+from sdhn_sim.viz.renderer import VizRenderer
 
 
 def team_messages(env_name: str, count: int) -> list[Any]:
@@ -135,8 +137,8 @@ def overhead(env_name: str, states: int) -> None:
     msgs = team_messages(env_name, states)
     ctx = foxglove.Context()
     server = foxglove.start_server(host="127.0.0.1", port=0, context=ctx)
-    scene = SceneUpdateChannel(TOPIC_SCENE, context=ctx)
-    metrics = foxglove.Channel(TOPIC_METRICS, schema=METRICS_SCHEMA, context=ctx)
+    scene = SceneUpdateChannel(VIZ_SCENE, context=ctx)
+    metrics = foxglove.Channel(VIZ_METRICS, schema=METRICS_SCHEMA, context=ctx)
     idle_ms, sent = run_states(msgs, scene, metrics)
     print(f"per-state cost, {env_name}, {states} states:")
     print(f"  no client:  {idle_ms:7.3f} ms/state  (scenes encoded: {sent})")

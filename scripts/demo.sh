@@ -39,7 +39,7 @@ scripts/launch.sh configs/launch/deploy-maif10.yaml --set weights="$WEIGHTS" \
   --set run_dir="$RUN_DIR/deploy" --set episodes="$EPISODES" --set status_interval=5
 
 echo "[demo] 3/3 results"
-PLOT=$(.venv/bin/python -m sdhn_sim.launch_plot "$RUN_DIR/deploy" --train-run "$RUN_DIR/train")
+PLOT=$(.venv/bin/python -m sdhn_sim.launch.plot "$RUN_DIR/deploy" --train-run "$RUN_DIR/train")
 MCAP="$RUN_DIR/deploy/recording.mcap"
 [ -f "$MCAP" ] || { echo "[demo] no recording was written"; exit 1; }
 # The recording itself is plain ROS (rosbags, rosbag2 tools read it); its Foxglove copy adds the

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Start a whole sdhn ROS graph from one YAML config (see configs/launch/ and sdhn_sim/launch.py):
+# Start a whole sdhn ROS graph from one YAML config (see configs/launch/ and sdhn_sim/launch/supervisor.py):
 #   scripts/launch.sh configs/launch/deploy-tiny.yaml --set weights=runs/<run> --set episodes=5
 # Ctrl-C / SIGTERM stops every child cleanly and reports their exit codes.
 set -euo pipefail

@@ -237,7 +237,7 @@ def main() -> int:
     if status:
         print(f"  trainer's last status: {status[-1].split('status: ', 1)[1]}")
     print(f"\n  dropped messages per process: {drops_from_logs(run) or 'none'}")
-    from sdhn_sim.recording import read_recording
+    from sdhn_sim.recording.reader import read_recording
 
     mcap = run / "recording.mcap"
     if mcap.exists():

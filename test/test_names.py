@@ -2,8 +2,8 @@
 exactly the names of the env registry (``sdhn_sim.envs.registry.env_names``) and of the algorithm
 registry (``sdhn_train.algorithms.registry.ALGO_NAMES``), no more and no fewer.
 
-An *acceptor* is ``name -> bool`` (True = accepted). To cover another place that takes names (the
-launcher, the simulator node), add one function and list it in ENV_ACCEPTORS / ALGO_ACCEPTORS.
+An *acceptor* is ``name -> bool`` (True = accepted). To cover another place that takes names, add
+one function and list it in ENV_ACCEPTORS / ALGO_ACCEPTORS.
 """
 
 from __future__ import annotations
@@ -16,6 +16,11 @@ from pathlib import Path
 import pytest
 
 from sdhn_sim.envs.registry import env_names
+from sdhn_sim.launch.supervisor import LaunchConfigError, load_config
+from sdhn_sim.lockstep import SimConfig, SimConfigError
+from sdhn_sim.ros.runner import ConfigError as NodeConfigError
+from sdhn_sim.sim_node import PARAMETERS, sim_config
+from sdhn_sim.viz.viz_node import _check_params as viz_check_params
 from sdhn_train import cli
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.analysis.experiments import ExperimentError, load_suite
@@ -70,14 +75,10 @@ def cli_algo(name: str) -> bool:
 
 
 def node_env(name: str) -> bool:
-    from sdhn_sim.base_node import ConfigError as NodeConfigError
-
     return _raises(lambda: check_params(TrainerParams(env=name)), NodeConfigError)
 
 
 def node_algo(name: str) -> bool:
-    from sdhn_sim.base_node import ConfigError as NodeConfigError
-
     return _raises(lambda: check_params(TrainerParams(algo=name)), NodeConfigError)
 
 
@@ -96,9 +97,30 @@ def figures_algo(name: str) -> bool:
     return name in method_order() and name not in ("sdhn_wo_lsk", "sdhn_wo_shr")
 
 
+def launcher_env(name: str) -> bool:
+    return _raises(lambda: load_config(None, ["mode=train", f"env={name!r}"]), LaunchConfigError)
+
+
+def sim_core_env(name: str) -> bool:
+    return _raises(lambda: SimConfig(env=name).validate(), SimConfigError)
+
+
+def sim_node_env(name: str) -> bool:
+    """The node's path: declared defaults with ``env`` overridden -> the core's config."""
+    params = {k: default for k, (default, _) in PARAMETERS.items()}
+    return _raises(lambda: sim_config({**params, "env": name}).validate(), SimConfigError)
+
+
+def viz_node_env(name: str) -> bool:
+    if name == "":
+        return False  # '' means "whatever the messages name" there, not an environment
+    return _raises(lambda: viz_check_params("/sdhn", name, "127.0.0.1"), NodeConfigError)
+
+
 ENV_ACCEPTORS: dict[str, Acceptor] = {
     "trainer config": config_env, "train CLI": cli_env, "trainer node": node_env,
-    "figures": figures_env,
+    "figures": figures_env, "launcher": launcher_env, "sim core": sim_core_env,
+    "sim node": sim_node_env, "viz node": viz_node_env,
 }
 ALGO_ACCEPTORS: dict[str, Acceptor] = {
     "trainer config": config_algo, "train CLI": cli_algo, "trainer node": node_algo,

@@ -27,9 +27,9 @@ setup(
     entry_points={
         "console_scripts": [
             "sim = sdhn_sim.sim_node:main",
-            "recorder = sdhn_sim.recorder_node:main",
-            "replay = sdhn_sim.replay:main",
-            "viz = sdhn_sim.viz_node:main",
+            "recorder = sdhn_sim.recording.recorder_node:main",
+            "replay = sdhn_sim.recording.replay:main",
+            "viz = sdhn_sim.viz.viz_node:main",
         ],
     },
 )

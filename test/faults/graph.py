@@ -20,6 +20,8 @@ from typing import Any
 
 from ros.processes import NodeProcess
 
+from sdhn_sim.ros import topics
+
 LAUNCH = [sys.executable, "-m", "sdhn_sim.launch"]
 _LOG_TIME = re.compile(r"^\[(\w+)\] \[(\d+\.\d+)\] \[([^\]]+)\]: (.*)$")
 
@@ -88,22 +90,25 @@ class Watcher(Peer):
 
     def __init__(self, ns: str, num_robots: int, name: str = "fault_watcher") -> None:
         from sdhn_msgs.msg import EpisodeSummary, PolicyWeights, RobotAction, TeamState
-        from sdhn_sim.qos import LATCHED, STEP
+        from sdhn_sim.ros.qos import LATCHED, STEP
 
         super().__init__(name)
         self.ns = ns.rstrip("/")
         self.seen = Seen()
         node = self.node
-        self.subs = [node.create_subscription(TeamState, f"{self.ns}/state",
+        def name(relative: str) -> str:
+            return topics.absolute(self.ns, relative)
+
+        self.subs = [node.create_subscription(TeamState, name(topics.STATE),
                                               _add(self.seen.states), STEP),
-                     node.create_subscription(EpisodeSummary, f"{self.ns}/episode",
+                     node.create_subscription(EpisodeSummary, name(topics.EPISODE),
                                               _add(self.seen.episodes), STEP),
-                     node.create_subscription(PolicyWeights, f"{self.ns}/policy/weights",
+                     node.create_subscription(PolicyWeights, name(topics.WEIGHTS),
                                               _add(self.seen.weights), LATCHED)]
         for i in range(num_robots):
             self.seen.actions[i] = []
             self.subs.append(node.create_subscription(
-                RobotAction, f"{self.ns}/robot_{i}/action", _add(self.seen.actions[i]), STEP))
+                RobotAction, name(topics.robot_action(i)), _add(self.seen.actions[i]), STEP))
         self.start()
 
 

@@ -37,6 +37,11 @@ CASES = {
                           "step_deadline:"),
     "actor-robot-id-too-big": (("sdhn_policy", "actor"), ["robot_id:=4", "num_robots:=4"],
                                "robot_id:"),
+    # Typed descriptors: ROS itself refuses a wrong type or an out-of-range value.
+    "actor-float-robot-id": (("sdhn_policy", "actor"), ["robot_id:=1.5", "num_robots:=4"],
+                             "robot_id:"),
+    "sim-negative-episodes": (("sdhn_sim", "sim"), ["env:=maif-tiny", "episodes:=-1"],
+                              "episodes:"),
     "actor-missing-weights": (("sdhn_policy", "actor"),
                               ["robot_id:=0", "num_robots:=4",
                                "weights_file:=/nonexistent/actor.safetensors"], "weights_file:"),

@@ -22,7 +22,8 @@ from ros.processes import node_processes
 
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation, TeamState
 from sdhn_policy.weights import ActorSpec, decode_weights, encode_actor, save_actor_file
-from sdhn_sim.qos import LATCHED, STEP
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.qos import LATCHED, STEP
 
 from .graph import Peer, wait_until
 from .hostile import action_msg, hostile_weights, obs_msg, weights_msg
@@ -66,9 +67,11 @@ def test_actor_drops_each_malformed_obs_and_weights_kind(tmp_path: Path) -> None
     marker = tmp_path / "pickle-ran"
     peer = Peer("fake_sim")
     got: list[RobotAction] = []
-    obs_pub = peer.node.create_publisher(RobotObservation, f"{NS}/robot_1/obs", STEP)
-    w_pub = peer.node.create_publisher(PolicyWeights, f"{NS}/policy/weights", LATCHED)
-    peer.node.create_subscription(RobotAction, f"{NS}/robot_1/action", got.append, STEP)
+    obs_topic, action_topic = (topics.absolute(NS, topics.robot_obs(1)),
+                               topics.absolute(NS, topics.robot_action(1)))
+    obs_pub = peer.node.create_publisher(RobotObservation, obs_topic, STEP)
+    w_pub = peer.node.create_publisher(PolicyWeights, topics.absolute(NS, topics.WEIGHTS), LATCHED)
+    peer.node.create_subscription(RobotAction, action_topic, got.append, STEP)
     peer.start()
     rng = np.random.default_rng(1)
     good_obs = rng.uniform(0, 1, obs_size).astype(np.float32)
@@ -88,7 +91,7 @@ def test_actor_drops_each_malformed_obs_and_weights_kind(tmp_path: Path) -> None
         with node_processes(cmd) as (actor,):
             assert actor.wait_for_line("ready", timeout=30), actor.output
             assert wait_until(lambda: obs_pub.get_subscription_count() >= 1
-                              and peer.node.count_publishers(f"{NS}/robot_1/action") >= 1, 20), (
+                              and peer.node.count_publishers(action_topic) >= 1, 20), (
                 f"actor's obs/action topics never matched:\n{actor.output}")
             first = answer(0, 0)
             assert first is not None and first.policy_version == 1, (first, actor.output)
@@ -162,7 +165,8 @@ def test_sim_drops_each_hostile_action_kind(tmp_path: Path) -> None:
     hostile_steps = {(0, 3), (0, 6)}
     peer = Peer("fake_robots")
     states: list[Any] = []
-    pubs = {k: peer.node.create_publisher(RobotAction, f"{SIM_NS}/robot_{k}/action", STEP)
+    pubs = {k: peer.node.create_publisher(RobotAction,
+                                          topics.absolute(SIM_NS, topics.robot_action(k)), STEP)
             for k in (2, 3)}
 
     def on_obs(k: int, m: RobotObservation) -> None:
@@ -179,9 +183,11 @@ def test_sim_drops_each_hostile_action_kind(tmp_path: Path) -> None:
                 pubs[3].publish(msg)
 
     for k in (2, 3):
-        peer.node.create_subscription(RobotObservation, f"{SIM_NS}/robot_{k}/obs",
+        peer.node.create_subscription(RobotObservation,
+                                      topics.absolute(SIM_NS, topics.robot_obs(k)),
                                       lambda m, k=k: on_obs(k, m), STEP)
-    peer.node.create_subscription(TeamState, f"{SIM_NS}/state", states.append, STEP)
+    peer.node.create_subscription(TeamState, topics.absolute(SIM_NS, topics.STATE), states.append,
+                                  STEP)
     peer.start()
     cmds = [sim_cmd(ns=SIM_NS, episodes=0, step_deadline=deadline, max_steps=40,
                     start_timeout=30.0),

@@ -22,9 +22,10 @@ from rclpy.serialization import serialize_message
 from ros.processes import ROS2, NodeProcess, node_processes
 from ros.team_stream import team_stream
 
-from sdhn_sim.mcap_writer import CHUNK_BYTES
-from sdhn_sim.qos import STEP
-from sdhn_sim.recording import decode, read_recording
+from sdhn_sim.recording.reader import decode, read_recording
+from sdhn_sim.recording.writer import CHUNK_BYTES
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.qos import STEP
 from sdhn_train.checkpoint import latest_checkpoint
 
 from .graph import (
@@ -229,7 +230,7 @@ def test_recorder_killed_leaves_readable_mcap_and_replay_says_truncated(tmp_path
     ns = "/f_recfault"
     msgs = list(team_stream(episodes=24, max_steps=12))  # > 1 chunk of 256 KiB
     peer = Peer("rec_fault_pub")
-    pubs = {o.topic: peer.node.create_publisher(type(o.message), f"{ns}/{o.topic}", STEP)
+    pubs = {o.topic: peer.node.create_publisher(type(o.message), topics.absolute(ns, o.topic), STEP)
             for o in msgs}
     peer.start()
     rec_cmd = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={out}",
@@ -252,7 +253,7 @@ def test_recorder_killed_leaves_readable_mcap_and_replay_says_truncated(tmp_path
             t0 = time.monotonic()
             for o in msgs:
                 pubs[o.topic].publish(o.message)
-                sent.setdefault(f"{ns}/{o.topic}", []).append(o.message)
+                sent.setdefault(topics.absolute(ns, o.topic), []).append(o.message)
                 if o.topic == "episode":  # ~13 messages per topic per episode: paced so
                     time.sleep(0.1)  # neither queue (depth 64) overflows on a loaded host
             for p in pubs.values():

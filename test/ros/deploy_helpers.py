@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from sdhn_sim.ros import topics
+
 from .processes import ROS2
 
 TEAM_NS = "/sdhn"
@@ -46,7 +48,8 @@ def sim_cmd(env: str = "maif-tiny", ns: str = TEAM_NS, **params: Any) -> list[st
 
 
 def actor_cmd(i: int, n: int, ns: str = TEAM_NS, **params: Any) -> list[str]:
-    args = [*ROS2, "run", "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:={ns}/robot_{i}",
+    robot_ns = topics.absolute(ns, topics.robot(i))
+    args = [*ROS2, "run", "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:={robot_ns}",
             "-p", f"team_ns:={ns}", "-p", f"robot_id:={i}", "-p", f"num_robots:={n}"]
     for k, v in params.items():
         args += ["-p", f"{k}:={_ros(v)}"]
@@ -105,7 +108,7 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     from rclpy.experimental import EventsExecutor
 
     from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
-    from sdhn_sim.qos import STEP
+    from sdhn_sim.ros.qos import STEP
 
     context = Context()
     rclpy.init(context=context)
@@ -125,12 +128,15 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     def on_state(_m: Any) -> None:
         seen.state_count += 1
 
-    subs = [node.create_subscription(RobotAction, f"{ns}/robot_{i}/action", on_action, STEP)
+    subs = [node.create_subscription(RobotAction, topics.absolute(ns, topics.robot_action(i)),
+                                     on_action, STEP)
             for i in range(num_robots)]
-    subs += [node.create_subscription(RobotObservation, f"{ns}/robot_{i}/obs", on_obs, STEP)
+    subs += [node.create_subscription(RobotObservation, topics.absolute(ns, topics.robot_obs(i)),
+                                      on_obs, STEP)
              for i in range(num_robots)]
-    subs.append(node.create_subscription(TeamState, f"{ns}/state", on_state, STEP))
-    subs.append(node.create_subscription(EpisodeSummary, f"{ns}/episode",
+    subs.append(node.create_subscription(TeamState, topics.absolute(ns, topics.STATE), on_state,
+                                         STEP))
+    subs.append(node.create_subscription(EpisodeSummary, topics.absolute(ns, topics.EPISODE),
                                          seen.episodes.append, STEP))
 
     def spin(seconds: float, until: Any = None) -> bool:

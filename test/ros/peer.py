@@ -20,7 +20,11 @@ from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 
 from sdhn_msgs.msg import RobotAction, RobotObservation
-from sdhn_sim.qos import STEP
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.qos import STEP
+
+OBS_1 = topics.absolute("/sdhn", topics.robot_obs(1))
+ACTION_1 = topics.absolute("/sdhn", topics.robot_action(1))
 
 
 def observation(step: int) -> RobotObservation:
@@ -35,10 +39,8 @@ def run_sim(steps: int, timeout: float) -> int:
     rclpy.init(context=context)
     node = rclpy.create_node("peer_sim", context=context)
     replies: dict[int, RobotAction] = {}
-    pub = node.create_publisher(RobotObservation, "/sdhn/robot_1/obs", STEP)
-    node.create_subscription(
-        RobotAction, "/sdhn/robot_1/action", lambda m: replies.setdefault(m.step, m), STEP
-    )
+    pub = node.create_publisher(RobotObservation, OBS_1, STEP)
+    node.create_subscription(RobotAction, ACTION_1, lambda m: replies.setdefault(m.step, m), STEP)
     executor = EventsExecutor(context=context)
     executor.add_node(node)
     deadline = time.monotonic() + timeout
@@ -67,7 +69,7 @@ def run_robot(timeout: float) -> int:
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("peer_robot", context=context)
-    pub = node.create_publisher(RobotAction, "/sdhn/robot_1/action", STEP)
+    pub = node.create_publisher(RobotAction, ACTION_1, STEP)
 
     def answer(msg: RobotObservation) -> None:
         total = float(np.frombuffer(msg.obs, dtype=np.float32).sum())
@@ -77,7 +79,7 @@ def run_robot(timeout: float) -> int:
             )
         )
 
-    node.create_subscription(RobotObservation, "/sdhn/robot_1/obs", answer, STEP)
+    node.create_subscription(RobotObservation, OBS_1, answer, STEP)
     executor = EventsExecutor(context=context)
     executor.add_node(node)
     deadline = time.monotonic() + timeout

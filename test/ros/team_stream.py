@@ -19,6 +19,7 @@ from sdhn_msgs.msg import (
     TeamState,
 )
 from sdhn_sim.envs import make_single_env
+from sdhn_sim.ros import topics
 
 ENV = "maif-tiny"
 
@@ -40,22 +41,24 @@ def team_stream(episodes: int, max_steps: int, seed: int = 0, version: int = 1) 
     n = env.num_robots
     for e in range(episodes):
         obs, state = env.reset()
+        instance = env.instance_id
         reward, term, trunc, t, ret = 0.0, False, False, 0, 0.0
         while True:
             positions = np.asarray(env.positions, np.int32).reshape(-1)
             for i in range(n):
-                yield Out(f"robot_{i}/obs", RobotObservation(
+                yield Out(topics.robot_obs(i), RobotObservation(
                     episode=e, step=t, robot_id=i, num_robots=n, obs=floats(obs[i]),
                     reward=reward, terminated=term, truncated=trunc))
-            yield Out("state", TeamState(
+            yield Out(topics.STATE, TeamState(
                 env_name=ENV, episode=e, step=t, num_robots=n, state=floats(state),
                 positions=array.array("i", positions.tobytes()), team_reward=reward,
-                terminated=term, truncated=trunc, makespan_so_far=t, missed_actions=0))
+                terminated=term, truncated=trunc, makespan_so_far=t, missed_actions=0,
+                instance_id=instance))
             if term or trunc:
                 break
             actions = rng.integers(0, env.num_actions, n)
             for i in range(n):
-                yield Out(f"robot_{i}/action", RobotAction(
+                yield Out(topics.robot_action(i), RobotAction(
                     episode=e, step=t, robot_id=i, action=int(actions[i]),
                     log_prob=float(np.log(1 / env.num_actions)), policy_version=version))
             res = env.step(actions)
@@ -64,11 +67,11 @@ def team_stream(episodes: int, max_steps: int, seed: int = 0, version: int = 1) 
             ret += reward
             t += 1
         ep = res.info["episode"]
-        yield Out("episode", EpisodeSummary(
+        yield Out(topics.EPISODE, EpisodeSummary(
             env_name=ENV, episode=e, length=ep.length, completed=ep.success,
             makespan=ep.makespan or 0, episode_return=ep.episode_return,
             collisions=ep.collisions, formation_error=ep.formation_error, missed_actions=0,
-            policy_version=version))
+            policy_version=version, instance_id=instance))
 
 
 def weights_message(version: int) -> PolicyWeights:

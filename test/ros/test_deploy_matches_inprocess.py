@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sdhn_sim.ros import topics
+
 from .deploy_helpers import (
     action_table,
     actor_cmd,
@@ -24,8 +26,9 @@ def test_ros_deploy_actions_equal_inprocess_greedy_rollout(weights: Path) -> Non
     ns = "/sdhn_equal"
     actors = [actor_cmd(i, N, ns, weights_file=weights, greedy=True) for i in range(N)]
     with observer(N, ns) as (node, seen, spin), node_processes(*actors) as procs:
-        assert spin(30, lambda: all(node.count_publishers(f"{ns}/robot_{i}/action") >= 1
-                                    for i in range(N))), [p.output for p in procs]
+        actions = [topics.absolute(ns, topics.robot_action(i)) for i in range(N)]
+        assert spin(30, lambda: all(node.count_publishers(t) >= 1 for t in actions)), [
+            p.output for p in procs]
         with node_processes(sim_cmd(ns=ns, seed=SEED, episodes=EPISODES, max_steps=MAX_STEPS,
                                     extra_subscribers=1)) as (sim,):
             assert spin(60, lambda: len(seen.episodes) == EPISODES), sim.output

@@ -5,6 +5,7 @@ reported, and restarted under ``restart.policy: on-failure``."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import os
 import re
 import signal
@@ -13,6 +14,15 @@ import time
 from pathlib import Path
 
 import pytest
+
+from sdhn_sim.launch.supervisor import (
+    LaunchConfig,
+    LaunchConfigError,
+    graph,
+    load_config,
+    resolve,
+    validate,
+)
 
 from .processes import NodeProcess, node_processes
 
@@ -53,11 +63,18 @@ def test_runs_its_episodes_and_ends_cleanly(weights: Path, tmp_path: Path) -> No
         launcher.proc.wait(timeout=60)
     assert launcher.proc.returncode == 0, launcher.output
     assert "every child stopped cleanly" in launcher.output
-    rows = list(csv.DictReader((tmp_path / "episodes.csv").read_text().splitlines()))
+    text = (tmp_path / "episodes.csv").read_text()
+    assert text.startswith("episode,completed,makespan,return,"), text  # outcome first
+    rows = list(csv.DictReader(text.splitlines()))
     assert [r["episode"] for r in rows] == ["0", "1"]
     assert all(r["missed_actions"] == "0" and r["length"] == "40" for r in rows), rows
+    assert all(r["completed"] in ("True", "False") and int(r["instance_id"]) >= 0 for r in rows)
     logs = {p.name for p in (tmp_path / "logs").iterdir()}
     assert logs == {"sim.log", *(f"actor_{i}.log" for i in range(4))}
+    # Readiness and results came as data: every child's ready file, the sim's events.
+    status = {p.name for p in (tmp_path / "status").iterdir()}
+    assert status == {"sim.ready", "sim-events.jsonl", *(f"actor_{i}.ready" for i in range(4))}
+    assert "5/5 ready" in launcher.output, launcher.output
 
 
 @pytest.mark.parametrize("policy", ["on-failure", "never"])
@@ -97,3 +114,29 @@ def test_bad_config_exits_2_naming_the_field(tmp_path: Path) -> None:
         launcher.proc.wait(timeout=30)
     assert launcher.proc.returncode == 2
     assert "mode:" in launcher.output and "allowed: deploy, train" in launcher.output
+
+
+def test_validate_checks_without_changing_and_resolve_fills_in(weights: Path) -> None:
+    cfg = LaunchConfig(env="maif-tiny", weights=str(weights.parent))
+    before = dataclasses.asdict(cfg)
+    validate(cfg)
+    assert dataclasses.asdict(cfg) == before, "validate changed what it checked"
+    done = resolve(cfg)
+    assert dataclasses.asdict(cfg) == before
+    assert done.robots == 4 and done.weights.endswith(".safetensors") and done.run_dir
+
+
+def test_trainer_section_is_passed_through_by_name(tmp_path: Path) -> None:
+    cfg = load_config(None, ["mode=train", "env=maif-tiny", f"run_dir={tmp_path}",
+                             "trainer.algo=mappo", "trainer.some_new_knob=3"])
+    trainer = next(c for c in graph(cfg) if c.name == "trainer")
+    args = " ".join(trainer.ros_args)
+    assert "algo:=mappo" in args and "some_new_knob:=3" in args, args
+    with pytest.raises(LaunchConfigError, match=r"trainer\.seed: set by the launcher"):
+        load_config(None, ["mode=train", "trainer.seed=3"])
+
+
+@pytest.mark.parametrize("ns", ["sdhn", "/sdhn/", "/1team", "/a__b", ""])
+def test_team_ns_follows_the_one_rule(ns: str) -> None:
+    with pytest.raises(LaunchConfigError, match="team_ns"):
+        load_config(None, ["mode=train", f"team_ns={ns}"])

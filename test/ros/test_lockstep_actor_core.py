@@ -11,7 +11,7 @@ import pytest
 from safetensors.numpy import load as st_load
 from safetensors.numpy import save as st_save
 
-from sdhn_policy.actor_core import ActorCore, Decision, Drop, weights_error_kind
+from sdhn_policy.actor_core import ActorCore, Decision, Drop
 from sdhn_policy.weights import ActorSpec, ActorWeights, WeightsError, encode_actor, sha256_hex
 from sdhn_sim.lockstep import LockstepSim, SimConfig, SimConfigError
 
@@ -47,6 +47,23 @@ def test_missing_actions_become_stay_and_are_counted() -> None:
     assert result is not None and f.truncated
     assert result.missed_actions == 3 and result.policy_version == 3 and result.length == 3
     assert sim.finished
+
+
+@pytest.mark.parametrize("env,instance", [("maif-tiny", 7), ("maif-tiny", -1), ("rware-3", -1)])
+def test_frames_and_results_carry_the_world_identity(env: str, instance: int) -> None:
+    """Every frame and episode result names the world it shows (MAIF instance id; -1 for RWARE),
+    and positions come from the single-env view for both kinds of world."""
+    sim = LockstepSim(SimConfig(env=env, seed=3, instance=instance, max_steps=3))
+    frame = sim.reset()
+    want = sim.env.instance_id
+    assert (want == instance) if instance >= 0 else (want >= 0) == env.startswith("maif")
+    result = None
+    while result is None:
+        assert frame.instance_id == want
+        assert frame.positions.shape == (sim.num_robots, 2)
+        assert np.array_equal(frame.positions, sim.env.positions)
+        frame, result = sim.advance()
+    assert result.instance_id == want and frame.instance_id == want
 
 
 def test_malformed_actions_are_dropped_by_kind() -> None:
@@ -99,7 +116,7 @@ def test_bad_weights_are_rejected_and_old_ones_kept(mutate: object, kind: str) -
     bad = mutate(blob(2))  # type: ignore[operator]
     with pytest.raises(WeightsError) as e:
         offer(core, bad)
-    assert weights_error_kind(e.value.reason) == kind
+    assert e.value.kind == kind
     d = core.on_obs(0, 0, 0, 4, np.zeros(57, np.float32))
     assert isinstance(d, Decision) and d.version == 1
 
@@ -114,7 +131,7 @@ def test_wrong_shape_weights_are_rejected() -> None:
     core = ActorCore(robot_id=0, num_robots=4, greedy=True, seed=0)
     with pytest.raises(WeightsError) as e:
         core.offer_weights(good.format, 2, payload, sha256_hex(payload))
-    assert weights_error_kind(e.value.reason) == "bad_tensors"
+    assert e.value.kind == "bad_tensors"
 
 
 @pytest.mark.parametrize("obs,kind", [

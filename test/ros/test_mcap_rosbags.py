@@ -9,7 +9,7 @@ import numpy as np
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from sdhn_sim.mcap_writer import McapRosWriter
+from sdhn_sim.recording.writer import McapRosWriter
 
 from .test_msgs_roundtrip import hypergraph, observation, summary, team_state, weights
 

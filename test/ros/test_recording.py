@@ -19,13 +19,14 @@ import rclpy
 from rclpy.context import Context
 from rosbags.highlevel import AnyReader
 
-from sdhn_sim.mcap_writer import McapRosWriter
-from sdhn_sim.qos import LATCHED, SENSOR, STEP
-from sdhn_sim.recording import (
+from sdhn_sim.recording.reader import (
     read_recording,
     summaries_from_messages,
     summaries_from_states,
 )
+from sdhn_sim.recording.writer import McapRosWriter
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
 from .processes import ROS2, node_processes
 from .team_stream import ENV, hypergraph_message, team_stream, weights_message
@@ -35,7 +36,7 @@ REPLAY = [*ROS2, "run", "sdhn_sim", "replay"]
 
 
 def expected_counts(ns: str) -> Counter[str]:
-    return Counter(f"{ns}/{o.topic}" for o in team_stream(EPISODES, MAX_STEPS))
+    return Counter(topics.absolute(ns, o.topic) for o in team_stream(EPISODES, MAX_STEPS))
 
 
 @pytest.fixture(scope="module")
@@ -50,10 +51,10 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, s
     from sdhn_msgs.msg import Hypergraph, PolicyWeights
 
     types = {o.topic: type(o.message) for o in msgs}
-    pubs = {topic: node.create_publisher(cls, f"{ns}/{topic}", STEP)
+    pubs = {topic: node.create_publisher(cls, topics.absolute(ns, topic), STEP)
             for topic, cls in types.items()}
-    weights = node.create_publisher(PolicyWeights, f"{ns}/policy/weights", LATCHED)
-    graphs = node.create_publisher(Hypergraph, f"{ns}/hypergraph", SENSOR)
+    weights = node.create_publisher(PolicyWeights, topics.absolute(ns, topics.WEIGHTS), LATCHED)
+    graphs = node.create_publisher(Hypergraph, topics.absolute(ns, topics.HYPERGRAPH), SENSOR)
     weights.publish(weights_message(1))  # before the recorder exists: must arrive latched
     # viz:=false (the default, named here because it matters): rosbags 0.11.9 cannot open a file
     # that also holds the protobuf viz channels.
@@ -190,7 +191,7 @@ def test_truncated_recording_reports_one_line_and_keeps_the_readable_part(
 
 
 def test_recorder_never_overwrites_an_existing_file(tmp_path: Path) -> None:
-    from sdhn_sim.recorder_node import fresh_path
+    from sdhn_sim.recording.recorder_node import fresh_path
 
     first = tmp_path / "a.mcap"
     assert fresh_path(first) == first

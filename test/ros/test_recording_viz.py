@@ -30,10 +30,10 @@ from rclpy.context import Context
 from sdhn_msgs.msg import Hypergraph
 from sdhn_policy.weights import ActorSpec, encode_actor, save_actor_file
 from sdhn_sim.envs import make_single_env
-from sdhn_sim.mcap_writer import McapRosWriter
-from sdhn_sim.qos import STEP
-from sdhn_sim.recording import decode, read_recording
-from sdhn_sim.viz_scene import map_to_cell
+from sdhn_sim.recording.reader import decode, read_recording
+from sdhn_sim.recording.writer import McapRosWriter
+from sdhn_sim.ros.qos import STEP
+from sdhn_sim.viz.draw import map_to_cell
 
 from .deploy_helpers import TEAM_NS, actor_cmd, sim_cmd
 from .processes import ROS2, node_processes

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_sim.recording import read_recording, summaries_from_messages, summaries_from_states
+from sdhn_sim.recording.reader import read_recording, summaries_from_messages, summaries_from_states
 from sdhn_train.checkpoint import latest_checkpoint
 
 from .deploy_helpers import TEAM_NS, Seen, actor_cmd, observer, sim_cmd
@@ -115,7 +115,7 @@ def test_recording_of_the_train_run_holds_every_step(train_run: TrainRun) -> Non
     obs: dict[tuple[int, int], int] = {}
     for raw in rec.messages:
         if raw.topic.endswith("/obs"):
-            from sdhn_sim.recording import decode
+            from sdhn_sim.recording.reader import decode
 
             m = decode(raw)
             obs[(m.episode, m.step)] = obs.get((m.episode, m.step), 0) + 1

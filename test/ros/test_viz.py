@@ -25,8 +25,9 @@ from rclpy.context import Context
 
 from sdhn_msgs.msg import EpisodeSummary, Hypergraph, TeamState
 from sdhn_sim.envs import make_single_env
-from sdhn_sim.qos import SENSOR, STEP
-from sdhn_sim.viz_scene import map_to_cell
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.qos import SENSOR, STEP
+from sdhn_sim.viz.draw import map_to_cell
 
 from .processes import ROS2, NodeProcess, node_processes
 
@@ -59,9 +60,12 @@ class TeamPublisher:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("viz_test_publisher", context=self.context)
-        self.state = self.node.create_publisher(TeamState, "/sdhn/state", STEP)
-        self.hyper = self.node.create_publisher(Hypergraph, "/sdhn/hypergraph", SENSOR)
-        self.episode = self.node.create_publisher(EpisodeSummary, "/sdhn/episode", STEP)
+        def name(relative: str) -> str:
+            return topics.absolute("/sdhn", relative)
+
+        self.state = self.node.create_publisher(TeamState, name(topics.STATE), STEP)
+        self.hyper = self.node.create_publisher(Hypergraph, name(topics.HYPERGRAPH), SENSOR)
+        self.episode = self.node.create_publisher(EpisodeSummary, name(topics.EPISODE), STEP)
         env = make_single_env(ENV, seed=5)
         _, state = env.reset()
         self.positions = env.positions.copy()

@@ -1,4 +1,5 @@
-"""viz_scene without ROS: map recovery, validation, scenes decoded as Foxglove would (protobuf)."""
+"""sdhn_sim.viz without ROS: the map from the instance id, validation, scenes decoded as Foxglove
+would (protobuf)."""
 
 from __future__ import annotations
 
@@ -12,21 +13,11 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from sdhn_sim.envs import make_single_env
-from sdhn_sim.viz_scene import (
-    TOPIC_EPISODES,
-    TOPIC_HYPERGRAPH,
-    TOPIC_METRICS,
-    TOPIC_P_H,
-    TOPIC_SCENE,
-    BadInput,
-    MaifMapper,
-    VizRenderer,
-    cell_center,
-    map_to_cell,
-    parse_team_state,
-    world_info,
-)
+from sdhn_sim.envs import load_instances, make_single_env
+from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
+from sdhn_sim.viz.draw import cell_center, map_to_cell
+from sdhn_sim.viz.renderer import VizRenderer
+from sdhn_sim.viz.world import BadInput, MaifMap, parse_team_state, world_info
 
 
 def decode(message: Any) -> Any:
@@ -48,7 +39,7 @@ def team_state(env_name: str, state: np.ndarray, positions: np.ndarray, **kw: An
         header=stamp(), env_name=env_name, episode=0, step=0,
         num_robots=positions.shape[0], state=array.array("f", state.astype(np.float32).tobytes()),
         positions=positions.reshape(-1).tolist(), team_reward=0.0, terminated=False,
-        truncated=False, makespan_so_far=0, missed_actions=0,
+        truncated=False, makespan_so_far=0, missed_actions=0, instance_id=-1,
     )
     fields.update(kw)
     return SimpleNamespace(**fields)
@@ -57,6 +48,7 @@ def team_state(env_name: str, state: np.ndarray, positions: np.ndarray, **kw: An
 def maif_msg(name: str = "maif-tiny", seed: int = 0, **kw: Any) -> tuple[Any, Any]:
     env = make_single_env(name, seed=seed)
     _, state = env.reset()
+    kw.setdefault("instance_id", env.instance_id)
     return team_state(name, state, env.positions, **kw), env
 
 
@@ -72,7 +64,7 @@ def test_cell_and_map_coordinates_round_trip() -> None:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_maif_instance_and_obstacles_are_recovered_exactly(seed: int) -> None:
+def test_maif_map_is_the_instance_the_state_names(seed: int) -> None:
     msg, env = maif_msg("maif-tiny", seed)
     renderer = VizRenderer()
     renderer.on_state(msg)
@@ -82,13 +74,23 @@ def test_maif_instance_and_obstacles_are_recovered_exactly(seed: int) -> None:
     assert np.array_equal(est.obstacles, env.obstacles)
 
 
-def test_maif_unknown_instance_falls_back_to_what_windows_show() -> None:
+@pytest.mark.parametrize("instance", ["none", "contradicted"])
+def test_maif_without_a_usable_id_shows_only_what_windows_show(instance: str) -> None:
+    """No id (a recording made before TeamState carried one) or an id whose map the robots'
+    windows contradict: the map is what the windows showed, never a guessed instance."""
     msg, env = maif_msg("maif-tiny", 0)
-    state = np.frombuffer(msg.state, np.float32).reshape(4, -1).copy()
-    state[:, 4] = 0.0  # goals that match no instance of the set
-    msg.state = array.array("f", state.tobytes())
+    if instance == "none":
+        msg.instance_id = -1
+    else:
+        cfg = world_info("maif-tiny").maif
+        assert cfg is not None
+        state = np.frombuffer(msg.state, np.float32).reshape(4, -1)
+        seen, known = MaifMap(cfg).observed(state, env.positions)
+        inst = load_instances("maif-tiny")
+        msg.instance_id = next(k for k in range(inst.num_instances)
+                               if not np.array_equal(inst.instance(k)[0][known], seen[known]))
     frame = parse_team_state(msg)
-    est = MaifMapper(frame.world.maif).estimate(frame)  # type: ignore[arg-type]
+    est = MaifMap(frame.world.maif).estimate(frame)  # type: ignore[arg-type]
     assert not est.exact and est.instance_id == -1
     assert 0 < est.known.sum() < est.known.size
     assert np.array_equal(est.obstacles[est.known], env.obstacles[est.known])
@@ -99,7 +101,8 @@ def test_scene_has_robots_at_their_cells_with_labels_trails_and_static_map() -> 
     renderer = VizRenderer(trail_length=4)
     renderer.on_state(msg)
     moved = env.positions.copy()
-    renderer.on_state(team_state("maif-10", np.frombuffer(msg.state, np.float32), moved, step=1))
+    renderer.on_state(team_state("maif-10", np.frombuffer(msg.state, np.float32), moved, step=1,
+                                 instance_id=msg.instance_id))
     found = entities(renderer.scene())
     assert {"map/floor", "map/obstacles", "map/goals"} <= set(found)
     assert len(found["map/obstacles"].cubes) == int(env.obstacles.sum())
@@ -173,11 +176,11 @@ def test_hypergraph_scene_and_p_h_heatmap() -> None:
     renderer = VizRenderer()
     renderer.on_state(msg)
     out = dict(renderer.render("hypergraph", hypergraph(4, 3)))
-    found = entities(out[TOPIC_HYPERGRAPH])
+    found = entities(out[VIZ_HYPERGRAPH])
     meta = {kv.key: kv.value for kv in found["hypergraph"].metadata}
     assert meta["skewness"] == "0.2500" and meta["num_hyperedges"] == "3"
     assert {f"hyperedge/{j}" for j in range(3)} <= set(found)
-    image = decode(out[TOPIC_P_H])
+    image = decode(out[VIZ_P_H])
     assert (image.height, image.width, image.encoding) == (4 * 12, 3 * 12, "rgb8")
     assert len(image.data) == image.height * image.step
     assert renderer.metrics()["skewness"] == 0.25
@@ -209,10 +212,10 @@ def test_metrics_follow_states_and_episodes() -> None:
     summary = SimpleNamespace(
         env_name="maif-tiny", episode=0, length=9, completed=False, makespan=0,
         episode_return=-3.0, collisions=2, formation_error=0.5, missed_actions=1,
-        policy_version=7,
+        policy_version=7, instance_id=5,
     )
     (topic, episode), = renderer.render("episode", summary)
-    assert topic == TOPIC_EPISODES and episode["makespan"] is None
+    assert topic == VIZ_EPISODES and episode["makespan"] is None and episode["instance_id"] == 5
     m = renderer.metrics()
     assert m["return_so_far"] == pytest.approx(4.5)
     assert m["step_rate"] == pytest.approx(10.0)
@@ -223,7 +226,7 @@ def test_metrics_follow_states_and_episodes() -> None:
 def test_render_for_replay_gives_scene_and_metrics_per_state() -> None:
     msg, _ = maif_msg("maif-tiny", 0)
     out = VizRenderer().render("state", msg)
-    assert [t for t, _ in out] == [TOPIC_SCENE, TOPIC_METRICS]
+    assert [t for t, _ in out] == [VIZ_SCENE, VIZ_METRICS]
     with pytest.raises(ValueError, match="kind"):
         VizRenderer().render("weights", msg)
 

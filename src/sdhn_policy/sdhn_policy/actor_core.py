@@ -7,7 +7,7 @@ the version that produced it. The GRU state goes back to zeros when a new episod
 (step 0 or a different episode counter). NumPy only: importing this never imports torch.
 
     core = ActorCore(robot_id=2, num_robots=4, greedy=True, seed=0)
-    core.offer_weights(fmt, version, payload, sha256)    # WeightsError if rejected
+    core.offer_weights(fmt, version, payload, sha256)    # WeightsError (.kind) if rejected
     out = core.on_obs(episode, step, robot_id, num_robots, obs)
     if isinstance(out, Decision): publish(out.action, out.log_prob, out.version)
     else: count(out.kind, out.reason)                    # a Drop
@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sdhn_policy.actor_runtime import ActorRuntime
-from sdhn_policy.weights import WeightsError
+from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError
 
 MAX_WEIGHTS_BYTES = 64 * 1024 * 1024
 """Largest weights payload an actor accepts (the actor itself is ~100 kB)."""
@@ -38,22 +38,6 @@ class Decision:
 class Drop:
     kind: str  # e.g. "wrong_obs_length"; counted per kind
     reason: str  # human-readable detail for the log
-
-
-def weights_error_kind(reason: str) -> str:
-    """A short kind for a WeightsError reason (the node counts and logs once per kind)."""
-    text = reason.lower()
-    if text.startswith("oversized"):
-        return "oversized_payload"
-    if "sha256" in text:
-        return "bad_sha256"
-    if "format" in text and "unknown" in text:
-        return "unknown_format"
-    if "shape" in text or "tensor" in text or "dtype" in text:
-        return "bad_tensors"
-    if "incompatible" in text:
-        return "incompatible_weights"
-    return "bad_weights"
 
 
 class ActorCore:
@@ -80,15 +64,12 @@ class ActorCore:
         """Version of the weights in use (0 = none yet)."""
         return self.runtime.version if self.runtime is not None else 0
 
-    @property
-    def has_weights(self) -> bool:
-        return self.runtime is not None or self._pending is not None
-
     def _check(self, rt: ActorRuntime) -> None:
         spec = rt.spec
         if spec.use_robot_id and spec.num_robots != self.num_robots:
-            raise WeightsError(f"incompatible weights: trained for {spec.num_robots} robots "
-                               f"(one-hot id), this team has {self.num_robots}")
+            raise IncompatibleWeightsError(
+                f"incompatible weights: trained for {spec.num_robots} robots (one-hot id), this "
+                f"team has {self.num_robots}")
 
     def offer_weights(self, fmt: str, version: int, payload: bytes, sha256: str) -> bool:
         """Validate new weights and queue them for the next step; False when that version is
@@ -97,7 +78,8 @@ class ActorCore:
         if newest is not None and newest.version == version and version > 0:
             return False
         if len(payload) > MAX_WEIGHTS_BYTES:
-            raise WeightsError(f"oversized payload: {len(payload)} bytes > {MAX_WEIGHTS_BYTES}")
+            raise OversizedPayloadError(
+                f"oversized payload: {len(payload)} bytes > {MAX_WEIGHTS_BYTES}")
         rt = ActorRuntime.from_bytes(fmt, version, payload, sha256)
         self._check(rt)
         self._pending = rt

@@ -1,12 +1,14 @@
 """Per-robot actor node ``sdhn_policy actor``: one OS process per robot, NumPy policy only.
 
-Launched as ``actor --ros-args -r __ns:=/sdhn/robot_<i> -p robot_id:=<i> -p num_robots:=<N>``.
-Subscribes to its own ``{team_ns}/robot_<i>/obs`` and to ``{team_ns}/policy/weights`` (latched),
-publishes ``{team_ns}/robot_<i>/action``. Nothing else: an actor never sees another robot's
-observation or the global state. The obs subscription and the action publisher are created only
-once the actor holds weights (from ``weights_file`` at start, or the first valid weights message),
-so the simulator, which waits for both before step 0, never starts a step this actor cannot answer.
-The decision logic lives in :mod:`sdhn_policy.actor_core`; this file never imports torch.
+Launched as ``actor --ros-args -r __ns:=/sdhn/robot_<i> -p team_ns:=/sdhn -p robot_id:=<i>
+-p num_robots:=<N>``. Subscribes to its own ``robot_<i>/obs`` and to the team's ``policy/weights``
+(latched), publishes ``robot_<i>/action``, all under ``team_ns`` (names from
+:mod:`sdhn_sim.ros.topics`; absolute, because the weights topic is the team's, not the robot's).
+Nothing else: an actor never sees another robot's observation or the global state. The obs
+subscription and the action publisher are created only once the actor holds weights (from
+``weights_file`` at start, or the first valid weights message), so the simulator, which waits for
+both before step 0, never starts a step this actor cannot answer. The decision logic lives in
+:mod:`sdhn_policy.actor_core`; this file never imports torch.
 """
 
 from __future__ import annotations
@@ -21,70 +23,71 @@ from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
-from sdhn_policy.actor_core import ActorCore, Decision, Drop, weights_error_kind
+from sdhn_policy.actor_core import ActorCore, Decision, Drop
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.weights import WeightsError
-from sdhn_sim.base_node import ConfigError, run_node
-from sdhn_sim.qos import LATCHED, STEP
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.params import boolean, declare, integer, string
+from sdhn_sim.ros.qos import LATCHED, STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
+
+PARAMETERS = {
+    "team_ns": (topics.DEFAULT_TEAM_NS, string(f"team namespace; {topics.TEAM_NS_RULE}")),
+    "robot_id": (0, integer("this robot's id, 0 <= robot_id < num_robots", 0)),
+    "num_robots": (10, integer("team size N", 1)),
+    "weights_file": ("", string("actor .safetensors file (with its .json sidecar); '' = wait "
+                                "for the weights topic")),
+    "greedy": (False, boolean("argmax actions instead of sampling")),
+    "seed": (0, integer("seed of the action sampler", 0)),
+}
+WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait for "
+                   "the weights topic)")
 
 
 class ActorNode(Node):
     def __init__(self, context: Context) -> None:
         super().__init__("actor", context=context)
-        ns = str(self.declare_parameter("team_ns", "/sdhn").value).rstrip("/")
-        robot_id = self.declare_parameter("robot_id", 0).value
-        num_robots = self.declare_parameter("num_robots", 10).value
-        weights_file = str(self.declare_parameter("weights_file", "").value)
-        greedy = self.declare_parameter("greedy", False).value
-        seed = self.declare_parameter("seed", 0).value
-        if not ns.startswith("/"):
-            raise ConfigError(f"team_ns: must be an absolute namespace like /sdhn, got {ns!r}")
-        if not isinstance(num_robots, int) or num_robots < 1:
-            raise ConfigError(f"num_robots: got {num_robots!r}; allowed: an integer >= 1")
-        if not isinstance(robot_id, int) or not 0 <= robot_id < num_robots:
-            raise ConfigError(f"robot_id: got {robot_id!r}; allowed: 0 <= robot_id < num_robots "
-                              f"({num_robots})")
-        if not isinstance(greedy, bool):
-            raise ConfigError(f"greedy: got {greedy!r}; allowed: true, false")
-        if not isinstance(seed, int) or seed < 0:
-            raise ConfigError(f"seed: got {seed!r}; allowed: an integer >= 0")
-        runtime = None
-        allowed = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait "
-                   "for the weights topic)")
-        if weights_file:
-            try:
-                runtime = ActorRuntime.from_file(weights_file)
-            except WeightsError as e:
-                raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {allowed}") from e
+        p = declare(self, PARAMETERS)
+        robot_id, num_robots, weights_file = p["robot_id"], p["num_robots"], p["weights_file"]
         try:
-            self.core = ActorCore(robot_id, num_robots, greedy, seed, runtime)
+            self.ns = topics.check_team_ns(p["team_ns"])
+        except topics.NamespaceError as e:
+            raise ConfigError(str(e)) from None
+        if robot_id >= num_robots:
+            raise ConfigError(f"robot_id: got {robot_id}; allowed: 0 <= robot_id < num_robots "
+                              f"({num_robots})")
+        try:
+            runtime = ActorRuntime.from_file(weights_file) if weights_file else None
+            self.core = ActorCore(robot_id, num_robots, p["greedy"], p["seed"], runtime)
         except WeightsError as e:
-            raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {allowed}") from e
-        self.ns, self.robot_id = ns, robot_id
+            raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {WEIGHTS_ALLOWED}") from e
+        self.robot_id = robot_id
         self.drops: Counter[str] = Counter()
         self.obs_sub: Subscription | None = None
         self.action_pub: Publisher | None = None
+        weights_topic = topics.absolute(self.ns, topics.WEIGHTS)
         self.weights_sub = self.create_subscription(
-            PolicyWeights, f"{ns}/policy/weights", self.on_weights, LATCHED)
+            PolicyWeights, weights_topic, self.on_weights, LATCHED)
         if runtime is not None:
             self.open_step_topics()
-        source = weights_file or f"waiting for {ns}/policy/weights"
-        self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={greedy}, "
+        source = weights_file or f"waiting for {weights_topic}"
+        self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
                                f"weights: {source} (version {self.core.version})")
 
     def open_step_topics(self) -> None:
         """Create the obs subscription and the action publisher (once we can answer)."""
         self.action_pub = self.create_publisher(
-            RobotAction, f"{self.ns}/robot_{self.robot_id}/action", STEP)
+            RobotAction, topics.absolute(self.ns, topics.robot_action(self.robot_id)), STEP)
         self.obs_sub = self.create_subscription(
-            RobotObservation, f"{self.ns}/robot_{self.robot_id}/obs", self.on_obs, STEP)
+            RobotObservation, topics.absolute(self.ns, topics.robot_obs(self.robot_id)),
+            self.on_obs, STEP)
 
     def on_weights(self, msg: PolicyWeights) -> None:
         try:
             new = self.core.offer_weights(msg.format, int(msg.version), bytes(msg.payload),
                                           msg.sha256)
         except WeightsError as e:
-            self.drop(weights_error_kind(e.reason), f"weights version {msg.version}: {e.reason}; "
+            self.drop(e.kind, f"weights version {msg.version}: {e.reason}; "
                       f"keeping version {self.core.version}")
             return
         if not new:

@@ -38,11 +38,44 @@ Tensors = dict[str, npt.NDArray[np.float32]]
 
 
 class WeightsError(ValueError):
-    """A weights payload or file was rejected; ``reason`` says why."""
+    """A weights payload or file was rejected; ``reason`` says why, ``kind`` names the class of
+    fault (an actor counts and logs rejections once per kind)."""
+
+    kind = "bad_weights"
 
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
         self.reason = reason
+
+
+class UnknownFormatError(WeightsError):
+    """The message names a weights format this runtime does not read."""
+
+    kind = "unknown_format"
+
+
+class Sha256MismatchError(WeightsError):
+    """The payload does not hash to the sha256 the message carries."""
+
+    kind = "bad_sha256"
+
+
+class BadTensorsError(WeightsError):
+    """The payload is no valid safetensors blob, or its tensors do not match the spec."""
+
+    kind = "bad_tensors"
+
+
+class OversizedPayloadError(WeightsError):
+    """The payload is larger than an actor accepts."""
+
+    kind = "oversized_payload"
+
+
+class IncompatibleWeightsError(WeightsError):
+    """Valid weights that this actor cannot use (e.g. trained for another team size)."""
+
+    kind = "incompatible_weights"
 
 
 @dataclass(frozen=True)
@@ -127,18 +160,18 @@ def validate_tensors(spec: ActorSpec, tensors: dict[str, np.ndarray]) -> Tensors
     missing = sorted(set(expected) - set(tensors))
     extra = sorted(set(tensors) - set(expected))
     if missing or extra:
-        raise WeightsError(
+        raise BadTensorsError(
             f"tensor names do not match the spec: missing {missing}, unexpected {extra}"
         )
     out: Tensors = {}
     for name, shape in expected.items():
         a = tensors[name]
         if tuple(a.shape) != shape:
-            raise WeightsError(f"tensor {name!r} has shape {tuple(a.shape)}, expected {shape}")
+            raise BadTensorsError(f"tensor {name!r} has shape {tuple(a.shape)}, expected {shape}")
         if a.dtype != np.float32:
-            raise WeightsError(f"tensor {name!r} has dtype {a.dtype}, expected float32")
+            raise BadTensorsError(f"tensor {name!r} has dtype {a.dtype}, expected float32")
         if not np.all(np.isfinite(a)):
-            raise WeightsError(f"tensor {name!r} contains NaN or inf")
+            raise BadTensorsError(f"tensor {name!r} contains NaN or inf")
         out[name] = a
     return out
 
@@ -192,11 +225,13 @@ def _read_metadata(payload: bytes) -> dict[str, str]:
 def decode_actor(fmt: str, version: int, payload: bytes, sha256: str) -> tuple[ActorSpec, Tensors]:
     """Validate the bytes form and return (spec, tensors). Raises WeightsError on any mismatch."""
     if fmt != ACTOR_FORMAT:
-        raise WeightsError(f"unknown weights format {fmt!r}; this runtime reads {ACTOR_FORMAT!r}")
+        raise UnknownFormatError(
+            f"unknown weights format {fmt!r}; this runtime reads {ACTOR_FORMAT!r}")
     payload = bytes(payload)
     actual = sha256_hex(payload)
     if actual != sha256.lower():
-        raise WeightsError(f"sha256 mismatch: message says {sha256}, payload hashes to {actual}")
+        raise Sha256MismatchError(
+            f"sha256 mismatch: message says {sha256}, payload hashes to {actual}")
     meta = _read_metadata(payload)
     if meta.get("format") != ACTOR_FORMAT:
         raise WeightsError(
@@ -211,7 +246,7 @@ def decode_actor(fmt: str, version: int, payload: bytes, sha256: str) -> tuple[A
     try:
         tensors = st_load(payload)
     except Exception as e:  # safetensors raises its own error type for corrupt blobs
-        raise WeightsError(f"payload is not a valid safetensors blob: {e}") from e
+        raise BadTensorsError(f"payload is not a valid safetensors blob: {e}") from e
     return spec, validate_tensors(spec, tensors)
 
 

@@ -18,7 +18,7 @@ next episode's first frame with :meth:`LockstepSim.reset`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -29,10 +29,6 @@ from sdhn_sim.envs.registry import env_names
 from sdhn_sim.envs.single import SingleEnv
 
 STAY = 0
-
-# Why an action was dropped; each kind is counted and logged once by the node.
-DROP_KINDS = ("unknown_robot", "stale_step", "future_step", "duplicate", "out_of_range")
-
 
 class SimConfigError(ValueError):
     """A simulator setting is invalid; the message names it and the allowed values."""
@@ -86,7 +82,8 @@ class Frame:
     step: int
     obs: npt.NDArray[np.float32]  # [N, D]
     state: npt.NDArray[np.float32]  # [S]
-    positions: npt.NDArray[np.int32]  # [N, 2] grid cells (x, y); [0, 2] when unknown
+    positions: npt.NDArray[np.int32]  # [N, 2] grid cells (x, y)
+    instance_id: int  # the world being played (MAIF instance id; -1 without numbered instances)
     reward: float  # team reward of the transition into this step (0 at step 0)
     terminated: bool
     truncated: bool
@@ -111,23 +108,17 @@ class EpisodeResult:
     formation_error: float
     missed_actions: int
     policy_version: int
-    actions: list[list[int]] = field(default_factory=list)  # [length][N] actions applied
+    instance_id: int  # as Frame.instance_id
 
 
 def _positions(env: SingleEnv) -> npt.NDArray[np.int32]:
-    try:
-        return np.asarray(env.positions, dtype=np.int32).reshape(-1, 2)
-    except NotImplementedError:
-        raw = getattr(env.env, "_raw", None)  # RWARE: the Warehouse's agents carry x, y
-        if raw:
-            return np.array([[a.x, a.y] for a in raw[0].agents], dtype=np.int32).reshape(-1, 2)
-        return np.zeros((0, 2), dtype=np.int32)
+    return np.asarray(env.positions, dtype=np.int32).reshape(-1, 2)
 
 
 class LockstepSim:
     """One environment stepped in lock-step from per-robot actions that arrive one by one."""
 
-    def __init__(self, cfg: SimConfig, keep_actions: bool = False) -> None:
+    def __init__(self, cfg: SimConfig) -> None:
         cfg.validate()
         self.cfg = cfg
         overrides: dict[str, Any] = {}
@@ -142,7 +133,6 @@ class LockstepSim:
         self.num_robots = self.env.num_robots
         self.obs_size = self.env.obs_size
         self.num_actions = self.env.num_actions
-        self.keep_actions = keep_actions
         self.episode = -1
         self.step = 0
         self.frame: Frame | None = None
@@ -150,9 +140,9 @@ class LockstepSim:
         self._got = np.zeros(self.num_robots, dtype=bool)
         self._ep_missed = 0
         self._ep_version = 0
-        self._ep_actions: list[list[int]] = []
         self.episodes_done = 0
         self.total_missed = 0
+        self.instance_id = -1  # of the current episode, read at reset
 
     @property
     def finished(self) -> bool:
@@ -166,9 +156,10 @@ class LockstepSim:
         self.step = 0
         self._ep_missed = 0
         self._ep_version = 0
-        self._ep_actions = []
         self._clear()
-        self.frame = Frame(self.episode, 0, obs, state, _positions(self.env), 0.0, False, False, 0)
+        self.instance_id = self.env.instance_id
+        self.frame = Frame(self.episode, 0, obs, state, _positions(self.env), self.instance_id,
+                           0.0, False, False, 0)
         return self.frame
 
     def _clear(self) -> None:
@@ -207,13 +198,11 @@ class LockstepSim:
         missed = int((~self._got).sum())
         self._ep_missed += missed
         self.total_missed += missed
-        if self.keep_actions:
-            self._ep_actions.append([int(a) for a in self._actions])
         res = self.env.step(self._actions.copy())
         self.step += 1
         self._clear()
         self.frame = Frame(self.episode, self.step, res.obs, res.state, _positions(self.env),
-                           res.reward, res.terminated, res.truncated, missed)
+                           self.instance_id, res.reward, res.terminated, res.truncated, missed)
         result = None
         if res.terminated or res.truncated:
             ep = res.info["episode"]
@@ -223,5 +212,5 @@ class LockstepSim:
                 completed=bool(ep.success), makespan=ep.makespan,
                 episode_return=float(ep.episode_return), collisions=int(ep.collisions),
                 formation_error=float(ep.formation_error), missed_actions=self._ep_missed,
-                policy_version=self._ep_version, actions=self._ep_actions)
+                policy_version=self._ep_version, instance_id=self.instance_id)
         return self.frame, result

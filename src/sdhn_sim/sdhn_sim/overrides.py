@@ -4,9 +4,10 @@
     set_field(cfg, "restart", {"policy": "on-failure"})   # a section from a mapping
     coerce("seed", int, "7")                   # 7
 
-Used by the trainer's config (``sdhn_train.config``) and the launcher (``sdhn_sim.launch``), so
-both accept the same spellings. Stdlib only. Every refusal is an :class:`OverrideError` (a
-``ValueError``) whose one-line message names the field and what is allowed:
+Used by the trainer's config (``sdhn_train.config``) and the launcher
+(``sdhn_sim.launch.supervisor``), so both accept the same spellings. Stdlib only. Every refusal
+is an :class:`OverrideError` (a ``ValueError``) whose one-line message
+names the field and what is allowed:
 
 - bool: a bool, or one of true/false, 1/0, yes/no, on/off (any case);
 - int: an int or an integral value (``"4"``, ``4.0``, ``"1e3"``); never ``2.7``, inf or NaN;

@@ -1,22 +1,26 @@
 """Simulator node ``sdhn_sim sim``: one environment stepped in lock-step with N actor processes.
 
-Publishes ``{team_ns}/robot_<i>/obs`` (one per robot), ``{team_ns}/state`` and
-``{team_ns}/episode``; subscribes to every ``{team_ns}/robot_<i>/action``. Before step 0 it waits
+Runs in the team namespace (``/sdhn``, or ``-r __ns:=/other``) and names its topics relative to it
+(:mod:`sdhn_sim.ros.topics`): publishes ``robot_<i>/obs`` (one per robot), ``state`` and
+``episode``; subscribes to every ``robot_<i>/action``. Before step 0 it waits
 until every obs topic has a subscriber (plus ``extra_subscribers``) and every action topic a
 publisher, then: publish step t, wait for the N actions of step t or ``step_deadline`` (missing ->
 stay, counted, logged), step, publish step t+1. The lock-step logic lives in
 :mod:`sdhn_sim.lockstep`; this file only moves messages. After ``episodes`` episodes (0 = never) it
 stops by itself with exit code 0; it exits 1 when the actors are not all matched within
-``start_timeout``."""
+``start_timeout``. With ``events_file`` set it also appends its events (started, progress, each
+episode's result, done) to that file as JSON lines for a supervisor (:mod:`sdhn_sim.ros.status`)."""
 
 from __future__ import annotations
 
 import array
+import dataclasses
 import functools
 import signal
 import time
 from collections import Counter
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -27,48 +31,62 @@ from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 
 from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
-from sdhn_sim.base_node import ConfigError, run_node
+from sdhn_sim.envs.registry import env_names
 from sdhn_sim.lockstep import EpisodeResult, Frame, LockstepSim, SimConfig, SimConfigError
-from sdhn_sim.qos import STEP
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.params import declare, floating, integer, string
+from sdhn_sim.ros.qos import STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
+from sdhn_sim.ros.status import EventWriter
 
 LOG_EVERY_S = 2.0  # period of the progress line
 
 
+# The parameters, typed and ranged (they mirror SimConfig; SimConfig.validate checks the rest).
+PARAMETERS = {
+    "env": ("maif-10", string(f"environment registry name, one of {', '.join(env_names())}")),
+    "seed": (0, integer("seed of the environment's instance stream", 0)),
+    "episodes": (0, integer("episodes to run, then stop with exit 0; 0 = until stopped", 0)),
+    "step_deadline": (1.0, floating("seconds to wait for all N actions of a step; a missing "
+                                    "action becomes 'stay'", 0.001, 3600.0)),
+    "instance": (-1, integer("MAIF instance to replay every episode; -1 = draw per episode", -1)),
+    "start_timeout": (60.0, floating("seconds to wait for every actor before step 0 (then exit "
+                                     "1)", 0.001, 86400.0)),
+    "max_steps": (0, integer("episode step limit; 0 = the environment's default", 0)),
+    "extra_subscribers": (0, integer("other nodes (trainer, recorder) whose state and obs "
+                                     "subscriptions to wait for before step 0", 0)),
+    "events_file": ("", string("JSON-lines file for a supervisor's events; '' = none")),
+}
+
+
+def sim_config(p: dict[str, Any]) -> SimConfig:
+    """The core's config from the declared parameters (types already checked by ROS)."""
+    return SimConfig(**{k: v for k, v in p.items() if k in SimConfig.__dataclass_fields__})
+
+
 class SimNode(Node):
     def __init__(self, context: Context) -> None:
-        super().__init__("sim", context=context)
-        p = {
-            "team_ns": self.declare_parameter("team_ns", "/sdhn").value,
-            "env": self.declare_parameter("env", "maif-10").value,
-            "seed": self.declare_parameter("seed", 0).value,
-            "episodes": self.declare_parameter("episodes", 0).value,
-            "step_deadline": self.declare_parameter("step_deadline", 1.0).value,
-            "instance": self.declare_parameter("instance", -1).value,
-            "start_timeout": self.declare_parameter("start_timeout", 60.0).value,
-            "max_steps": self.declare_parameter("max_steps", 0).value,
-            "extra_subscribers": self.declare_parameter("extra_subscribers", 0).value,
-        }
-        ns = str(p.pop("team_ns")).rstrip("/")
-        if not ns.startswith("/"):
-            raise ConfigError(f"team_ns: must be an absolute namespace like /sdhn, got {ns!r}")
+        # The team namespace is the node's: /sdhn unless remapped (-r __ns:=/other).
+        super().__init__("sim", namespace=topics.DEFAULT_TEAM_NS, context=context)
         try:
-            cfg = SimConfig(env=str(p["env"]), seed=int(p["seed"]), episodes=int(p["episodes"]),
-                            step_deadline=float(p["step_deadline"]), instance=int(p["instance"]),
-                            start_timeout=float(p["start_timeout"]),
-                            max_steps=int(p["max_steps"]),
-                            extra_subscribers=int(p["extra_subscribers"]))
-            self.sim = LockstepSim(cfg)
-        except (SimConfigError, TypeError, ValueError) as e:
+            topics.check_team_ns(self.get_namespace())
+        except topics.NamespaceError as e:
+            raise ConfigError(f"{e} (the simulator's namespace, -r __ns:=...)") from None
+        p = declare(self, PARAMETERS)
+        try:
+            self.sim = LockstepSim(sim_config(p))
+        except SimConfigError as e:
             raise ConfigError(str(e)) from e
-        self.cfg = cfg
+        self.cfg = cfg = self.sim.cfg
+        self.events = EventWriter(str(p["events_file"]))
         self.exit_code = 0
         n = self.sim.num_robots
-        self.obs_pubs = [self.create_publisher(RobotObservation, f"{ns}/robot_{i}/obs", STEP)
+        self.obs_pubs = [self.create_publisher(RobotObservation, topics.robot_obs(i), STEP)
                          for i in range(n)]
-        self.state_pub = self.create_publisher(TeamState, f"{ns}/state", STEP)
-        self.episode_pub: Publisher = self.create_publisher(EpisodeSummary, f"{ns}/episode", STEP)
+        self.state_pub = self.create_publisher(TeamState, topics.STATE, STEP)
+        self.episode_pub: Publisher = self.create_publisher(EpisodeSummary, topics.EPISODE, STEP)
         self.action_subs = [
-            self.create_subscription(RobotAction, f"{ns}/robot_{i}/action",
+            self.create_subscription(RobotAction, topics.robot_action(i),
                                      functools.partial(self.on_action, i), STEP)
             for i in range(n)]
         self.drops: Counter[str] = Counter()
@@ -87,7 +105,8 @@ class SimNode(Node):
         self.tick: Timer = self.create_timer(period, self.on_tick)
         self.get_logger().info(
             f"ready: env={cfg.env} robots={n} obs_size={self.sim.obs_size} seed={cfg.seed} "
-            f"episodes={cfg.episodes} step_deadline={cfg.step_deadline}s ns={ns}; waiting for "
+            f"episodes={cfg.episodes} step_deadline={cfg.step_deadline}s "
+            f"ns={self.get_namespace()}; waiting for "
             f"{n} actors")
 
     # -- start-up and deadline ---------------------------------------------------------------
@@ -107,6 +126,7 @@ class SimNode(Node):
                     f"all {self.sim.num_robots} actors matched after {now - self.t_start:.2f}s; "
                     "starting episode 0")
                 self.t_start = self.t_last_log = now
+                self.events.write("started", robots=self.sim.num_robots)
                 self.publish(self.sim.reset())
             elif now - self.t_start > self.cfg.start_timeout:
                 self.get_logger().error(
@@ -128,6 +148,8 @@ class SimNode(Node):
             self.advance()
         if now - self.t_last_log >= LOG_EVERY_S:
             rate = (self.steps_total - self.steps_at_last_log) / (now - self.t_last_log)
+            self.events.write("progress", episode=self.sim.episode, step=self.sim.step,
+                              steps_per_s=rate, missed=self.sim.total_missed)
             self.get_logger().info(f"progress: episode {self.sim.episode} step {self.sim.step} "
                                    f"{rate:.0f} steps/s missed={self.sim.total_missed}")
             self.t_last_log, self.steps_at_last_log = now, self.steps_total
@@ -168,6 +190,8 @@ class SimNode(Node):
             self.publish_summary(result)
             if self.sim.finished:
                 elapsed = time.monotonic() - self.t_start
+                self.events.write("done", episodes=self.sim.episodes_done,
+                                  steps=self.steps_total, elapsed_s=elapsed)
                 self.get_logger().info(
                     f"done: {self.sim.episodes_done} episodes, {self.steps_total} steps in "
                     f"{elapsed:.2f}s ({self.steps_total / elapsed:.1f} steps/s), "
@@ -189,6 +213,7 @@ class SimNode(Node):
         s.positions = array.array("i", f.positions.astype(np.int32).tobytes())
         s.team_reward, s.terminated, s.truncated = float(f.reward), f.terminated, f.truncated
         s.makespan_so_far, s.missed_actions = f.step, f.missed
+        s.instance_id = f.instance_id
         self.state_pub.publish(s)
         self.deadline = (float("inf") if f.done
                          else time.monotonic() + self.cfg.step_deadline)
@@ -209,8 +234,9 @@ class SimNode(Node):
         m.completed, m.makespan = r.completed, r.makespan or 0
         m.episode_return, m.collisions = r.episode_return, r.collisions
         m.formation_error, m.missed_actions = r.formation_error, r.missed_actions
-        m.policy_version = r.policy_version
+        m.policy_version, m.instance_id = r.policy_version, r.instance_id
         self.episode_pub.publish(m)
+        self.events.write("episode", **dataclasses.asdict(r))
         makespan = r.makespan if r.completed else "NC"
         self.get_logger().info(
             f"episode {r.episode} done: makespan={makespan} length={r.length} "

@@ -41,10 +41,11 @@ from sdhn_msgs.msg import (
     RobotObservation,
     TeamState,
 )
-from sdhn_sim.base_node import ConfigError, run_node
 from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
 from sdhn_sim.envs.registry import env_names, make_env
-from sdhn_sim.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, apply_dict, load_yaml, validate
@@ -113,8 +114,8 @@ def check_params(p: TrainerParams) -> None:
         raise ConfigError(f"env: {p.env!r} is unknown; allowed: {', '.join(env_names())}")
     if p.algo not in ALGO_NAMES:
         raise ConfigError(f"algo: {p.algo!r} is unknown; allowed: {', '.join(ALGO_NAMES)}")
-    if not p.team_ns.startswith("/"):
-        raise ConfigError(f"team_ns: {p.team_ns!r}; allowed: an absolute namespace like /sdhn")
+    if not topics.is_team_ns(p.team_ns):  # the one namespace rule (sdhn_sim.ros.topics)
+        raise ConfigError(f"team_ns: {p.team_ns!r}; allowed: {topics.TEAM_NS_RULE}")
 
 
 def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path: str) -> Config:
@@ -167,7 +168,7 @@ class TrainerNode(Node):
         cfg = build_config(p.env, p.algo, p.seed, p.rollout_steps, p.config)
         self.learner, env, resumed = open_learner(p, cfg)
         self.run_dir, self.info = self.learner.run_dir, self.learner.info
-        self.ns = p.team_ns.rstrip("/")
+        self.ns = p.team_ns
         n = self.info.num_robots
         self.assembler = TransitionAssembler(n, self.info.obs_size, self.info.state_size,
                                              self.info.num_actions,
@@ -180,16 +181,21 @@ class TrainerNode(Node):
         self._episodes_lock = threading.Lock()
         self._last_status = ""
 
-        self.weights_pub = self.create_publisher(PolicyWeights, f"{self.ns}/policy/weights",
-                                                 LATCHED)
-        self.hypergraph_pub = self.create_publisher(Hypergraph, f"{self.ns}/hypergraph", SENSOR)
+        self.weights_pub = self.create_publisher(
+            PolicyWeights, topics.absolute(self.ns, topics.WEIGHTS), LATCHED)
+        self.hypergraph_pub = self.create_publisher(
+            Hypergraph, topics.absolute(self.ns, topics.HYPERGRAPH), SENSOR)
         for i in range(n):
-            self.create_subscription(RobotObservation, f"{self.ns}/robot_{i}/obs",
+            self.create_subscription(RobotObservation,
+                                     topics.absolute(self.ns, topics.robot_obs(i)),
                                      functools.partial(self.on_obs, i), STEP)
-            self.create_subscription(RobotAction, f"{self.ns}/robot_{i}/action",
+            self.create_subscription(RobotAction,
+                                     topics.absolute(self.ns, topics.robot_action(i)),
                                      functools.partial(self.on_action, i), STEP)
-        self.create_subscription(TeamState, f"{self.ns}/state", self.on_state, STEP)
-        self.create_subscription(EpisodeSummary, f"{self.ns}/episode", self.on_episode, STEP)
+        self.create_subscription(TeamState, topics.absolute(self.ns, topics.STATE), self.on_state,
+                                 STEP)
+        self.create_subscription(EpisodeSummary, topics.absolute(self.ns, topics.EPISODE),
+                                 self.on_episode, STEP)
         self.create_timer(STATUS_PERIOD_S, self.log_status)
 
         self.publish_weights()
@@ -212,7 +218,7 @@ class TrainerNode(Node):
                 f"dropped a message on {topic}: {kind} ({detail}); counting, logged once per kind")
 
     def on_obs(self, robot: int, m: RobotObservation) -> None:
-        topic = f"{self.ns}/robot_{robot}/obs"
+        topic = topics.absolute(self.ns, topics.robot_obs(robot))
         if m.robot_id != robot:
             self._drop("robot id differs from the topic's robot", topic, f"robot_id={m.robot_id}")
             return
@@ -224,7 +230,7 @@ class TrainerNode(Node):
         self._queue_ready()
 
     def on_action(self, robot: int, m: RobotAction) -> None:
-        topic = f"{self.ns}/robot_{robot}/action"
+        topic = topics.absolute(self.ns, topics.robot_action(robot))
         if m.robot_id != robot:
             self._drop("robot id differs from the topic's robot", topic, f"robot_id={m.robot_id}")
             return
@@ -239,7 +245,8 @@ class TrainerNode(Node):
         reason = self.assembler.add_state(m.episode, m.step, state, num_robots=m.num_robots,
                                           team_reward=m.team_reward, terminated=m.terminated,
                                           truncated=m.truncated)
-        self._drop(reason, f"{self.ns}/state", f"episode {m.episode} step {m.step} "
+        self._drop(reason, topics.absolute(self.ns, topics.STATE),
+                   f"episode {m.episode} step {m.step} "
                    f"len {state.size}")
         self._queue_ready()
 

@@ -16,8 +16,6 @@ from .render import render_grid, robot_colors
 from .rware_env import RwareEnv
 from .single import SingleEnv, SingleStep
 
-render_rgb = render_grid
-
 __all__ = [
     "MAIF_CONFIGS",
     "BatchedEnv",
@@ -36,6 +34,5 @@ __all__ = [
     "make_env",
     "make_single_env",
     "render_grid",
-    "render_rgb",
     "robot_colors",
 ]

@@ -1,7 +1,8 @@
 """MAIF (Moving Agents In Formation), batched: B environments x N robots per NumPy call.
 
-Implements ``/work/shared/spec/maif.md``. Axis convention: see ``maif_instances`` (x = column to
-the right, y = row downwards, ``up`` = y - 1). Actions: 0 stay, 1 up, 2 down, 3 left, 4 right.
+The rules as implemented are described in ``docs/maif.md``. Axis convention: see
+``maif_instances`` (x = column to the right, y = row downwards, ``up`` = y - 1). Actions: 0 stay,
+1 up, 2 down, 3 left, 4 right.
 
 Internally every environment has a padded ``(size + 6) x (size + 6)`` int8 canvas (a border of
 3 = the observation radius): 0 free, 1 obstacle or outside, 2 robot. Robots are tracked by their
@@ -393,10 +394,6 @@ class MaifEnv:
     def instance_id(self) -> IntArray:
         """[B] instance id each env is playing."""
         return self._instance.copy()
-
-    @property
-    def step_count(self) -> IntArray:
-        return self._t.copy()
 
     def render_rgb(self, b: int = 0, cell_px: int = 8) -> npt.NDArray[np.uint8]:
         return self.world(b).render_rgb(cell_px)

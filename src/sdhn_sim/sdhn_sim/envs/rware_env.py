@@ -175,6 +175,12 @@ class RwareEnv:
             episodes=episodes,
         )
 
+    @property
+    def positions(self) -> npt.NDArray[np.int64]:
+        """[B, N, 2] (x, y) of every robot, read from the rware warehouses."""
+        return np.array([[[a.x, a.y] for a in raw.agents] for raw in self._raw],
+                        dtype=np.int64).reshape(len(self._raw), self.num_robots, 2)
+
     def close(self) -> None:
         for e in self._envs:
             e.close()

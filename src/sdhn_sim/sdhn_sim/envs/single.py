@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from .api import BatchedEnv, EpisodeStats, FloatArray
 from .maif import MaifEnv, MaifWorld
+from .rware_env import RwareEnv
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,15 @@ class SingleEnv:
 
     @property
     def positions(self) -> npt.NDArray[np.int64]:
+        """[N, 2] robot cells (x, y) of the state the caller last saw (MAIF and RWARE)."""
+        if isinstance(self.env, RwareEnv):
+            return self.env.positions[0]
         return self.world().positions
+
+    @property
+    def instance_id(self) -> int:
+        """The MAIF instance of the current episode; -1 for worlds without numbered instances."""
+        return self.world().instance_id if isinstance(self.env, MaifEnv) else -1
 
     @property
     def goals(self) -> npt.NDArray[np.int64]:

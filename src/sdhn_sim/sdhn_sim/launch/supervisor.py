@@ -5,13 +5,16 @@
 Starts the simulator, one actor *process* per robot, the trainer (mode ``train``) and the recorder
 (``recorder: true``), each through the ``ros2 run`` shim, all under ``team_ns``, each child's
 output in ``<run_dir>/logs/<name>.log``. While it runs it prints a status line (processes ready,
-episode, step rate, last makespan and return, weights version) built from the simulator's log
-lines, and appends every finished episode to ``<run_dir>/episodes.csv``. A child that exits is
-reported; under ``restart.policy: on-failure`` a child that failed (non-zero exit or killed) is
-restarted up to ``restart.max_restarts`` times. The run ends when the simulator finishes its
-episodes (exit 0), when the simulator fails for good, or on SIGINT/SIGTERM: every child then gets
-SIGINT (SIGKILL after ``stop_timeout``), and each exit code is reported. Exit code: 0 when every
-child stopped cleanly, 1 when one failed, 2 for an invalid configuration (named field, allowed
+episode, step rate, last success/makespan and return, weights version) and appends every finished
+episode to ``<run_dir>/episodes.csv``. Both come as data, never from log text
+(:mod:`sdhn_sim.ros.status`): a child is ready once its ready file
+``<run_dir>/status/<name>.ready`` exists (written by the node runner), and the simulator appends
+its events (started, progress, each episode's result) to ``<run_dir>/status/sim-events.jsonl``.
+A child that exits is reported; under ``restart.policy: on-failure`` a child that failed (non-zero
+exit or killed) is restarted up to ``restart.max_restarts`` times. The run ends when the simulator
+finishes its episodes (exit 0), when the simulator fails for good, or on SIGINT/SIGTERM: every child
+then gets SIGINT (SIGKILL after ``stop_timeout``), and each exit code is reported. Exit code: 0 when
+every child stopped cleanly, 1 when one failed, 2 for an invalid configuration (named field, allowed
 values).
 
 Config file fields (every one optional; see :class:`LaunchConfig`)::
@@ -22,7 +25,9 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
     step_deadline: 1.0    max_steps: 0                         instance: -1
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
     restart: {policy: never | on-failure, max_restarts: 3}
-    trainer: {algo: sdhn, rollout_steps: 128, config: "", resume: false}
+    trainer: {algo: sdhn, rollout_steps: 128, ...}   (mode train; passed through as the
+                          trainer node's parameters, which the trainer itself checks: a bad one
+                          ends the trainer with exit 2 and one line naming it in its log)
 """
 
 from __future__ import annotations
@@ -47,9 +52,11 @@ import yaml
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names
 from sdhn_sim.overrides import OverrideError, set_field
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.status import READY_ENV, EventReader
 
 MODES = ("deploy", "train")
-FASTDDS_PROFILE = Path(__file__).resolve().parent / "data" / "fastdds.xml"
+FASTDDS_PROFILE = Path(__file__).resolve().parent.parent / "data" / "fastdds.xml"
 RESTART_POLICIES = ("never", "on-failure")
 
 
@@ -63,12 +70,13 @@ class RestartConfig:
     max_restarts: int = 3  # per child
 
 
-@dataclass
-class TrainerConfig:
-    algo: str = "sdhn"  # sdhn | mappo
-    rollout_steps: int = 128  # team steps per update
-    config: str = ""  # optional YAML of the in-process trainer config
-    resume: bool = False
+# The trainer section is the trainer node's business: the launcher passes its fields through as
+# ROS parameters and knows none of them by name, except that a restarted trainer resumes
+# (RESUME_PARAMETER) from the run it started. The graph-wide fields (env, seed, team_ns) and the
+# trainer's run_dir are set by the launcher and may not appear in the section.
+RESUME_PARAMETER = "resume"
+LAUNCHER_SETS = ("env", "seed", "team_ns", "run_dir")
+TrainerSection = dict[str, str | int | float | bool]
 
 
 @dataclass
@@ -91,7 +99,7 @@ class LaunchConfig:
     stop_timeout: float = 10.0  # seconds from SIGINT to SIGKILL when stopping a child
     status_interval: float = 1.0  # seconds between status lines
     restart: RestartConfig = field(default_factory=RestartConfig)
-    trainer: TrainerConfig = field(default_factory=TrainerConfig)
+    trainer: TrainerSection = field(default_factory=dict)
 
 
 def team_size(env: str) -> int:
@@ -115,6 +123,7 @@ def resolve_weights(path: str) -> Path:
 
 
 def validate(cfg: LaunchConfig) -> None:
+    """Raise LaunchConfigError naming the first bad field; ``cfg`` is left as it is."""
     if cfg.env not in env_names():
         raise LaunchConfigError(f"env: unknown {cfg.env!r}; allowed: {', '.join(env_names())}")
     if cfg.mode not in MODES:
@@ -123,16 +132,14 @@ def validate(cfg: LaunchConfig) -> None:
     if cfg.robots not in (0, n):
         raise LaunchConfigError(f"robots: {cfg.env} has {n} robots, got {cfg.robots}; "
                                 f"allowed: 0 or {n}")
-    cfg.robots = n
     if cfg.mode == "deploy":
         if not cfg.weights:
             raise LaunchConfigError("weights: deploy mode needs an actor weights file or run dir")
-        cfg.weights = str(resolve_weights(cfg.weights).resolve())
+        resolve_weights(cfg.weights)
     if cfg.restart.policy not in RESTART_POLICIES:
         raise LaunchConfigError(f"restart.policy: got {cfg.restart.policy!r}; allowed: "
                                 f"{', '.join(RESTART_POLICIES)}")
-    for name in ("seed", "episodes", "max_steps", "restart.max_restarts",
-                 "trainer.rollout_steps"):
+    for name in ("seed", "episodes", "max_steps", "restart.max_restarts"):
         obj: Any = cfg
         for part in name.split("."):
             obj = getattr(obj, part)
@@ -141,12 +148,34 @@ def validate(cfg: LaunchConfig) -> None:
     for name in ("step_deadline", "start_timeout", "stop_timeout", "status_interval"):
         if not getattr(cfg, name) > 0:
             raise LaunchConfigError(f"{name}: must be > 0 seconds, got {getattr(cfg, name)}")
-    if not cfg.team_ns.startswith("/"):
-        raise LaunchConfigError(f"team_ns: must be absolute (e.g. /sdhn), got {cfg.team_ns!r}")
-    if cfg.trainer.algo not in ("sdhn", "mappo"):
-        raise LaunchConfigError(f"trainer.algo: got {cfg.trainer.algo!r}; allowed: sdhn, mappo")
-    if not cfg.run_dir:
-        cfg.run_dir = f"runs/{cfg.mode}-{cfg.env}-{time.strftime('%Y%m%d-%H%M%S')}"
+    try:
+        topics.check_team_ns(cfg.team_ns)
+    except topics.NamespaceError as e:
+        raise LaunchConfigError(str(e)) from None
+    for key, value in cfg.trainer.items():
+        if key in LAUNCHER_SETS:
+            raise LaunchConfigError(f"trainer.{key}: set by the launcher; allowed: any other "
+                                    "trainer parameter (the top-level field sets this one)")
+        if not isinstance(value, str | int | float | bool):
+            raise LaunchConfigError(f"trainer.{key}: expected a scalar, got {value!r}")
+
+
+def resolve(cfg: LaunchConfig) -> LaunchConfig:
+    """A validated config with the derived fields filled in (a new object): the team size, the
+    weights file found in a run directory, the default run directory."""
+    return dataclasses.replace(
+        cfg,
+        robots=team_size(cfg.env),
+        weights=str(resolve_weights(cfg.weights).resolve()) if cfg.mode == "deploy" else "",
+        run_dir=cfg.run_dir or f"runs/{cfg.mode}-{cfg.env}-{time.strftime('%Y%m%d-%H%M%S')}",
+    )
+
+
+def set_trainer(cfg: LaunchConfig, key: str, value: Any) -> None:
+    """One field of the pass-through trainer section (``trainer.KEY`` or a ``trainer:`` map)."""
+    if not key or "." in key:
+        raise LaunchConfigError(f"trainer.{key}: expected trainer.PARAMETER")
+    cfg.trainer[key] = value
 
 
 def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
@@ -159,14 +188,24 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
         if not isinstance(data, dict):
             raise LaunchConfigError(f"config: {path} must hold a mapping of fields")
         for k, v in data.items():
-            set_field(cfg, str(k), v)
+            if str(k) == "trainer":
+                if not isinstance(v, dict):
+                    raise LaunchConfigError(f"trainer: expected a mapping, got {v!r}")
+                for tk, tv in v.items():
+                    set_trainer(cfg, str(tk), tv)
+            else:
+                set_field(cfg, str(k), v)
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep:
             raise LaunchConfigError(f"--set {item!r}: expected FIELD=VALUE")
-        set_field(cfg, key.strip(), yaml.safe_load(value) if value.strip() else "")
+        parsed = yaml.safe_load(value) if value.strip() else ""
+        if key.strip().startswith("trainer."):
+            set_trainer(cfg, key.strip().removeprefix("trainer."), parsed)
+        else:
+            set_field(cfg, key.strip(), parsed)
     validate(cfg)
-    return cfg
+    return resolve(cfg)
 
 
 # --- children ---------------------------------------------------------------------------------
@@ -209,38 +248,47 @@ def _entry_package(script: Path) -> str | None:
 
 def graph(cfg: LaunchConfig) -> list[ChildSpec]:
     """The children of one run, in start order."""
-    ns, run = cfg.team_ns.rstrip("/"), Path(cfg.run_dir).resolve()
+    ns, run = topics.check_team_ns(cfg.team_ns), Path(cfg.run_dir).resolve()
     common = _param("team_ns", ns)
     children: list[ChildSpec] = []
     if cfg.recorder:
         children.append(ChildSpec("recorder", "sdhn_sim", "recorder", [
             "-r", f"__ns:={ns}", *common, *_param("output", str(run / "recording.mcap"))]))
     if cfg.mode == "train":
-        t = cfg.trainer
-        args = [*common, *_param("env", cfg.env), *_param("algo", t.algo),
-                *_param("seed", cfg.seed), *_param("run_dir", str(run / "trainer")),
-                *_param("rollout_steps", t.rollout_steps), *_param("resume", t.resume)]
-        if t.config:
-            args += _param("config", str(Path(t.config).resolve()))
+        args = [*common, *_param("env", cfg.env), *_param("seed", cfg.seed),
+                *_param("run_dir", str(run / "trainer"))]
+        for key, value in cfg.trainer.items():
+            args += _param(key, value)
         # A restarted trainer continues from its last checkpoint (without resume it would refuse
         # the run_dir its first start filled, exit 2, and never come back).
         children.append(ChildSpec("trainer", "sdhn_train", "trainer", ["-r", f"__ns:={ns}", *args],
-                                  restart_args=_param("resume", True)))
+                                  restart_args=_param(RESUME_PARAMETER, True)))
     extra = (int(cfg.recorder) + int(cfg.mode == "train")) if cfg.wait_for_observers else 0
+    # The simulator names its topics relative to its namespace, the team namespace.
     children.append(ChildSpec("sim", "sdhn_sim", "sim", [
-        "-r", f"__ns:={ns}", *common, *_param("env", cfg.env), *_param("seed", cfg.seed),
+        "-r", f"__ns:={ns}", *_param("env", cfg.env), *_param("seed", cfg.seed),
         *_param("episodes", cfg.episodes), *_param("step_deadline", float(cfg.step_deadline)),
         *_param("instance", cfg.instance), *_param("start_timeout", float(cfg.start_timeout)),
-        *_param("max_steps", cfg.max_steps), *_param("extra_subscribers", extra)],
+        *_param("max_steps", cfg.max_steps), *_param("extra_subscribers", extra),
+        *_param("events_file", str(status_dir(run) / SIM_EVENTS))],
         essential=True))
     weights = cfg.weights if cfg.mode == "deploy" else ""
     greedy = cfg.greedy if cfg.mode == "deploy" else False
     for i in range(cfg.robots):
         children.append(ChildSpec(f"actor_{i}", "sdhn_policy", "actor", [
-            "-r", f"__ns:={ns}/robot_{i}", *common, *_param("robot_id", i),
-            *_param("num_robots", cfg.robots), *_param("weights_file", weights),
-            *_param("greedy", greedy), *_param("seed", cfg.seed)]))
+            "-r", f"__ns:={topics.absolute(ns, topics.robot(i))}", *common,
+            *_param("robot_id", i), *_param("num_robots", cfg.robots),
+            *_param("weights_file", weights), *_param("greedy", greedy),
+            *_param("seed", cfg.seed)]))
     return children
+
+
+def status_dir(run_dir: Path) -> Path:
+    """Where the children's ready files and the simulator's events go."""
+    return run_dir / "status"
+
+
+SIM_EVENTS = "sim-events.jsonl"
 
 
 def _die_with_parent() -> None:
@@ -252,24 +300,29 @@ def _die_with_parent() -> None:
 
 
 class Child:
-    def __init__(self, spec: ChildSpec, log_dir: Path, env: dict[str, str]) -> None:
+    def __init__(self, spec: ChildSpec, log_dir: Path, ready_dir: Path,
+                 env: dict[str, str]) -> None:
         self.spec = spec
         self.log_path = log_dir / f"{spec.name}.log"
-        self.env = env
+        self.ready_path = ready_dir / f"{spec.name}.ready"
+        self.env = {**env, READY_ENV: str(self.ready_path)}
         self.restarts = 0
         self.proc: subprocess.Popen[bytes] | None = None
         self.log: IO[bytes] | None = None
-        self.ready = False
-        self._offset = 0
         self.exit_code: int | None = None
 
     def start(self) -> None:
+        self.ready_path.unlink(missing_ok=True)  # written again by this start's node runner
         self.log = open(self.log_path, "ab")  # noqa: SIM115 - lives as long as the child
         self.proc = subprocess.Popen(self.spec.command(restart=self.restarts > 0), stdout=self.log,
                                      stderr=subprocess.STDOUT, env=self.env,
                                      preexec_fn=_die_with_parent)  # noqa: PLW1509 - no threads
-        self.ready = False
         self.exit_code = None
+
+    @property
+    def ready(self) -> bool:
+        """Built and spinning: its ready file exists and it has not exited."""
+        return self.exit_code is None and self.ready_path.exists()
 
     def poll(self) -> int | None:
         if self.proc is None or self.exit_code is not None:
@@ -281,32 +334,26 @@ class Child:
                 self.log.close()
         return code
 
-    def new_lines(self) -> list[str]:
-        try:
-            with open(self.log_path, "rb") as f:
-                f.seek(self._offset)
-                data = f.read()
-        except OSError:
-            return []
-        cut = data.rfind(b"\n") + 1
-        self._offset += cut
-        lines = data[:cut].decode(errors="replace").splitlines()
-        if any("ready" in line for line in lines):
-            self.ready = True
-        return lines
-
     def signal(self, sig: int) -> None:
         if self.proc is not None and self.poll() is None:
             self.proc.send_signal(sig)
 
 
-EPISODE_RE = re.compile(
-    r"episode (\d+) done: makespan=(\S+) length=(\d+) return=(\S+) collisions=(\d+) "
-    r"missed=(\d+) policy_version=(\d+)")
-PROGRESS_RE = re.compile(r"progress: episode (\d+) step (\d+) (\d+) steps/s")
-STARTED_RE = re.compile(r"actors matched after")
-CSV_FIELDS = ["episode", "makespan", "length", "return", "collisions", "missed_actions",
-              "policy_version", "wall_s"]
+# episodes.csv: the outcome first (success, makespan), the return second, then the rest.
+CSV_FIELDS = ["episode", "completed", "makespan", "return", "length", "collisions",
+              "missed_actions", "policy_version", "instance_id", "wall_s"]
+
+
+def episode_row(event: dict[str, Any], wall_s: float) -> dict[str, Any]:
+    """One episodes.csv row from the simulator's episode event (an EpisodeResult as JSON)."""
+    completed = bool(event.get("completed"))
+    return {"episode": int(event["episode"]), "completed": completed,
+            "makespan": event.get("makespan") if completed else "NC",
+            "return": f"{float(event['episode_return']):.3f}", "length": int(event["length"]),
+            "collisions": int(event.get("collisions", 0)),
+            "missed_actions": int(event.get("missed_actions", 0)),
+            "policy_version": int(event.get("policy_version", 0)),
+            "instance_id": int(event.get("instance_id", -1)), "wall_s": f"{wall_s:.2f}"}
 
 
 def describe_exit(code: int | None) -> str:
@@ -330,7 +377,10 @@ class Launcher:
         env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
         # Faster participant announcements, so a restarted child matches the others in < 1 s.
         env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
-        self.children = [Child(spec, self.log_dir, env) for spec in graph(cfg)]
+        ready_dir = status_dir(self.run_dir)
+        ready_dir.mkdir(parents=True, exist_ok=True)
+        self.events = EventReader(ready_dir / SIM_EVENTS)
+        self.children = [Child(spec, self.log_dir, ready_dir, env) for spec in graph(cfg)]
         self.stop_requested = False
         self.failed: list[str] = []
         self.t0 = time.monotonic()
@@ -354,39 +404,37 @@ class Launcher:
         parts = [f"{ready}/{len(self.children)} ready", f"episode {ep} step {step}",
                  f"{self.step_rate:.0f} steps/s", f"{len(self.episodes)} episodes done"]
         if last:
-            parts += [f"last makespan {last['makespan']} return {float(last['return']):.1f}",
-                      f"weights v{last['policy_version']}"]
+            outcome = "completed" if last["completed"] else "not completed"
+            parts += [f"last {outcome}, makespan {last['makespan']}, return "
+                      f"{float(last['return']):.1f}", f"weights v{last['policy_version']}"]
         return " | ".join(parts)
 
     def write_config(self) -> None:
         (self.run_dir / "launch.yaml").write_text(
             yaml.safe_dump(dataclasses.asdict(self.cfg), sort_keys=False))
 
-    def read_logs(self) -> None:
-        for child in self.children:
-            for line in child.new_lines():
-                if child.spec.name != "sim":
-                    continue
-                if STARTED_RE.search(line):
-                    self.t_steps0 = time.monotonic()
-                m = EPISODE_RE.search(line)
-                if m:
-                    row = dict(zip(CSV_FIELDS, [*m.groups(), f"{time.monotonic() - self.t0:.2f}"],
-                                   strict=True))
-                    self.episodes.append(row)
-                    self.steps_done += int(row["length"])
-                    if self.t_steps0 is not None:
-                        self.step_rate = self.steps_done / max(time.monotonic() - self.t_steps0,
-                                                               1e-6)
-                    self.position = (int(m.group(1)) + 1, 0)
-                    self._append_csv(row)
-                    self.say(f"episode {row['episode']}: makespan {row['makespan']}, return "
-                             f"{row['return']}, length {row['length']}, missed "
-                             f"{row['missed_actions']}, weights v{row['policy_version']}")
-                m = PROGRESS_RE.search(line)
-                if m:
-                    self.position = (int(m.group(1)), int(m.group(2)))
-                    self.step_rate = float(m.group(3))
+    def read_events(self) -> None:
+        """Take the simulator's new events: start of stepping, progress, finished episodes."""
+        for event in self.events.new():
+            kind = event["event"]
+            if kind == "started":
+                self.t_steps0 = time.monotonic()
+            elif kind == "progress":
+                self.position = (int(event["episode"]), int(event["step"]))
+                self.step_rate = float(event["steps_per_s"])
+            elif kind == "episode":
+                row = episode_row(event, time.monotonic() - self.t0)
+                self.episodes.append(row)
+                self.steps_done += row["length"]
+                if self.t_steps0 is not None:
+                    self.step_rate = self.steps_done / max(time.monotonic() - self.t_steps0,
+                                                           1e-6)
+                self.position = (row["episode"] + 1, 0)
+                self._append_csv(row)
+                outcome = "completed" if row["completed"] else "not completed"
+                self.say(f"episode {row['episode']}: {outcome}, makespan {row['makespan']}, "
+                         f"return {row['return']}, length {row['length']}, missed "
+                         f"{row['missed_actions']}, weights v{row['policy_version']}")
 
     def _append_csv(self, row: dict[str, Any]) -> None:
         path = self.run_dir / "episodes.csv"
@@ -416,7 +464,7 @@ class Launcher:
         finished = False
         while not self.stop_requested and not finished:
             time.sleep(0.1)
-            self.read_logs()
+            self.read_events()
             finished = self.check_children()
             if time.monotonic() >= next_status:
                 next_status += self.cfg.status_interval
@@ -475,7 +523,7 @@ class Launcher:
                     child.proc.kill()
                     child.proc.wait()
                 child.poll()
-        self.read_logs()
+        self.read_events()
         codes = {c.spec.name: c.exit_code for c in self.children}
         bad = sorted(set(self.failed) | {n for n, c in codes.items() if c != 0})
         summary = ", ".join(f"{n}={describe_exit(c)}" for n, c in codes.items())

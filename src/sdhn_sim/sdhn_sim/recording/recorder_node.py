@@ -1,7 +1,8 @@
 """Recorder node ``sdhn_sim recorder``: every topic under ``team_ns`` into one MCAP file.
 
 Messages are taken as raw CDR (subscriptions with ``raw=True``, no deserialisation) and written
-with ``ros2msg`` schemas by :class:`sdhn_sim.mcap_writer.McapRosWriter`; log time = receive time.
+with ``ros2msg`` schemas by :class:`sdhn_sim.recording.writer.McapRosWriter`; log time =
+receive time.
 
 Which topics, with which QoS:
 - The contract's topics are subscribed from the start, with their contract profile, so nothing
@@ -21,7 +22,7 @@ last complete chunk (``sdhn_sim replay`` says where it stops).
 Viz channels (parameter ``viz``, default true): the team's ``state``, ``hypergraph`` and
 ``episode`` messages are also turned into the viz node's Foxglove channels (``/viz/scene``,
 ``/viz/hypergraph``, ``/viz/hypergraph/p_h``, ``/viz/metrics``, ``/viz/episodes``; protobuf and
-JSON, see ``sdhn_sim.viz_channels``) in the same file, so a recording opens as pictures. The
+JSON, see ``sdhn_sim.viz.channels``) in the same file, so a recording opens as pictures. The
 subscription callback only queues the raw CDR (a few microseconds); a worker thread deserialises,
 renders and writes (under the writer's lock), each viz message with its source's log time. If the
 worker falls ``VIZ_QUEUE`` messages behind, viz for the newest is skipped and counted: the raw
@@ -32,9 +33,7 @@ recording.
 from __future__ import annotations
 
 import functools
-import importlib
 import queue
-import re
 import threading
 import time
 from collections import Counter
@@ -47,33 +46,36 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
-from sdhn_sim.base_node import ConfigError, run_node
-from sdhn_sim.mcap_schema import ros2msg_schema
-from sdhn_sim.mcap_writer import McapRosWriter
-from sdhn_sim.qos import LATCHED, SENSOR, STEP
-from sdhn_sim.recording import fresh_path
-from sdhn_sim.viz_channels import KINDS, VizDeriver, VizMcapChannels
+from sdhn_sim.recording.reader import fresh_path
+from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg_schema
+from sdhn_sim.recording.writer import McapRosWriter
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.params import boolean, declare, string
+from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
+from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5
 VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
 STATUS_PERIOD_S = 5.0
 CONTRACT_TOPICS = {  # relative to team_ns: (type, profile)
-    "state": ("sdhn_msgs/msg/TeamState", STEP),
-    "episode": ("sdhn_msgs/msg/EpisodeSummary", STEP),
-    "policy/weights": ("sdhn_msgs/msg/PolicyWeights", LATCHED),
-    "hypergraph": ("sdhn_msgs/msg/Hypergraph", SENSOR),
+    topics.STATE: ("sdhn_msgs/msg/TeamState", STEP),
+    topics.EPISODE: ("sdhn_msgs/msg/EpisodeSummary", STEP),
+    topics.WEIGHTS: ("sdhn_msgs/msg/PolicyWeights", LATCHED),
+    topics.HYPERGRAPH: ("sdhn_msgs/msg/Hypergraph", SENSOR),
 }
 ROBOT_TOPICS = {
-    "obs": "sdhn_msgs/msg/RobotObservation",
-    "action": "sdhn_msgs/msg/RobotAction",
+    topics.OBS: "sdhn_msgs/msg/RobotObservation",
+    topics.ACTION: "sdhn_msgs/msg/RobotAction",
 }
-_ROBOT = re.compile(r"^robot_(\d+)/")
-
-
-def message_class(type_name: str) -> Any:
-    """'pkg/msg/Type' -> the Python message class; ImportError/AttributeError if unknown."""
-    package, kind, name = type_name.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+PARAMETERS = {
+    "output": ("", string("the .mcap file to write; '' = runs/recording-<time>.mcap (an "
+                          "existing file is never overwritten: -1, -2... is appended)")),
+    "team_ns": (topics.DEFAULT_TEAM_NS, string(f"team namespace; {topics.TEAM_NS_RULE}")),
+    # Off by default: rosbags (and other ROS-only readers) cannot open a file that also holds
+    # protobuf channels. `replay --add-viz` makes a Foxglove copy of a plain recording.
+    "viz": (False, boolean("also write the /viz/* channels (Foxglove) into the file")),
+}
 
 
 def profile_for(publisher_qos: list[QoSProfile]) -> QoSProfile:
@@ -148,27 +150,20 @@ class VizWorker:
 class RecorderNode(Node):
     def __init__(self, context: Context) -> None:
         super().__init__("recorder", context=context)
-        output = self.declare_parameter("output", "").value
-        team_ns = self.declare_parameter("team_ns", "/sdhn").value
-        # Off by default: rosbags (and other ROS-only readers) cannot open a file that also holds
-        # protobuf channels. `replay --add-viz` makes a Foxglove copy of a plain recording.
-        viz = self.declare_parameter("viz", False).value
-        if not isinstance(viz, bool):
-            raise ConfigError(f"viz: {viz!r}; allowed: true (write /viz/* channels) or false")
-        if not isinstance(output, str):
-            raise ConfigError(f"output: {output!r}; allowed: a path of a .mcap file, or '' "
-                              "(runs/recording-<time>.mcap)")
-        if not isinstance(team_ns, str) or not team_ns.startswith("/"):
-            raise ConfigError(f"team_ns: {team_ns!r}; allowed: an absolute namespace like /sdhn")
+        p = declare(self, PARAMETERS)
+        output, viz = str(p["output"]), bool(p["viz"])
+        try:
+            self.ns = topics.check_team_ns(p["team_ns"])
+        except topics.NamespaceError as e:
+            raise ConfigError(str(e)) from None
         requested = Path(output or f"runs/recording-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
         if requested.suffix != ".mcap":
             raise ConfigError(f"output: {output!r}; allowed: a path ending in .mcap")
         self.path = fresh_path(requested)
-        self.ns = team_ns.rstrip("/")
         self.writer = McapRosWriter(self.path)
         self.lock = threading.Lock()  # the viz worker writes into the same MCAP writer
         self.viz = (VizWorker(VizMcapChannels(self.writer.mcap), self.lock) if viz else None)
-        self._viz_kinds = {f"{self.ns}/{kind}": kind for kind in KINDS.values()}
+        self._viz_kinds = {topics.absolute(self.ns, kind): kind for kind in KINDS.values()}
         self.counts: dict[str, int] = {}
         self.skipped: set[str] = set()
         self._subs: dict[str, Any] = {}
@@ -177,7 +172,7 @@ class RecorderNode(Node):
         self._bytes = 0
         self._last_status = ""
         for rel, (type_name, profile) in CONTRACT_TOPICS.items():
-            self.record(f"{self.ns}/{rel}", type_name, profile)
+            self.record(topics.absolute(self.ns, rel), type_name, profile)
         self.discover()
         self.create_timer(DISCOVERY_PERIOD_S, self.discover)
         self.create_timer(STATUS_PERIOD_S, self.log_status)
@@ -192,7 +187,7 @@ class RecorderNode(Node):
         try:
             cls = message_class(type_name)
             ros2msg_schema(type_name)  # the schema must be writable too
-        except (ImportError, AttributeError, ValueError, FileNotFoundError) as e:
+        except (UnknownMessageType, ValueError, FileNotFoundError) as e:
             self.skipped.add(topic)
             self.get_logger().warning(f"not recording {topic} ({type_name}): {e}")
             return
@@ -201,17 +196,17 @@ class RecorderNode(Node):
         self.counts[topic] = 0
 
     def discover(self) -> None:
-        prefix = self.ns + "/"
         for topic, types in self.get_topic_names_and_types():
-            if not topic.startswith(prefix) or topic in self._subs or topic in self.skipped:
+            rel = topics.relative_to(self.ns, topic)
+            if rel is None or topic in self._subs or topic in self.skipped:
                 continue
-            rel = topic[len(prefix):]
-            robot = _ROBOT.match(rel)
-            if robot and int(robot.group(1)) not in self._robots:
-                i = int(robot.group(1))
+            robot = topics.robot_of(rel)
+            if robot and robot[0] not in self._robots:
+                i = robot[0]
                 self._robots.add(i)
                 for kind, type_name in ROBOT_TOPICS.items():
-                    self.record(f"{prefix}robot_{i}/{kind}", type_name, STEP)
+                    self.record(topics.absolute(self.ns, f"{topics.robot(i)}/{kind}"),
+                                type_name, STEP)
                 if topic in self._subs:
                     continue
             publishers = self.get_publishers_info_by_topic(topic)

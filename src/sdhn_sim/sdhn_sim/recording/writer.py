@@ -15,7 +15,7 @@ from typing import Any, BinaryIO, cast
 from mcap.writer import CompressionType, Writer
 from rclpy.serialization import serialize_message
 
-from sdhn_sim.mcap_schema import ros2msg_schema
+from sdhn_sim.recording.schema import ros2msg_schema
 
 CHUNK_BYTES = 256 * 1024
 
@@ -75,7 +75,7 @@ class McapRosWriter:
 
     @property
     def mcap(self) -> Writer:
-        """The underlying ``mcap`` writer, to add channels of other encodings (viz_channels)."""
+        """The underlying ``mcap`` writer, to add channels of other encodings (viz.channels)."""
         return self._writer
 
     def _channel(self, topic: str, type_name: str) -> int:

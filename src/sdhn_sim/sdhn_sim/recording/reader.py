@@ -15,15 +15,15 @@ terminated; makespan = length when completed; missed = sum of ``missed_actions``
 the newest version among the episode's recorded actions. Collisions and formation error are not in
 TeamState, so they stay unknown (None) there.
 
-Frames: rendered from the recorded positions. MAIF obstacles and goals are not in the messages; the
-instance is found in the environment's instance set as the one whose start cells equal the
-positions at step 0 (and whose obstacles no recorded position enters). Without a match (RWARE, or a
-recording that missed step 0) the frames show robots on a blank grid.
+Frames: rendered from the recorded positions on the world TeamState names: for MAIF the obstacles
+and goals of instance ``instance_id`` of the environment's fixed instance set. Recordings made
+before TeamState carried the id read as -1 (see ``ADDED_FIELDS``); for them, and for RWARE, the
+frames show robots on a blank grid and the note says why. Nothing is inferred from positions.
 """
 
 from __future__ import annotations
 
-import importlib
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +34,9 @@ import numpy.typing as npt
 from mcap.records import Channel, Chunk, Header, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rclpy.serialization import deserialize_message
+
+from sdhn_sim.recording.schema import message_class
+from sdhn_sim.ros import topics
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,7 @@ class RawMessage:
     channel_id: int = 0
     publish_time_ns: int = 0
     sequence: int = 0
+    old_schema: bool = False  # recorded before a field of ADDED_FIELDS existed (see current_cdr)
 
 
 @dataclass(frozen=True)
@@ -90,13 +94,41 @@ class NotMcapError(ValueError):
     """The file is not an MCAP recording at all."""
 
 
-def message_class(type_name: str) -> Any:
-    package, kind, name = type_name.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+# Fields appended to a message type after recordings had been made: type -> (field, value an
+# old recording means, struct format). A recording whose schema text lacks the field holds CDR
+# that ends where the old definition ended; current_cdr appends the field (aligned) so the
+# installed class decodes it. Old recordings thus read with instance_id = -1 ("unknown"), and
+# every reader of the id treats -1 as "no world identity" instead of guessing one.
+ADDED_FIELDS: dict[str, tuple[str, int, str]] = {
+    "sdhn_msgs/msg/TeamState": ("instance_id", -1, "i"),
+    "sdhn_msgs/msg/EpisodeSummary": ("instance_id", -1, "i"),
+}
+
+
+def lacks_added_field(type_name: str, schema_text: str) -> bool:
+    """True when ``schema_text`` (a ros2msg schema) predates the field ADDED_FIELDS names."""
+    added = ADDED_FIELDS.get(type_name)
+    if added is None:
+        return False
+    root = schema_text.split("=" * 80, 1)[0]
+    names = {line.split("#", 1)[0].split()[1] for line in root.splitlines()
+             if len(line.split("#", 1)[0].split()) >= 2}
+    return added[0] not in names
+
+
+def current_cdr(m: RawMessage) -> bytes:
+    """The message's CDR in the installed definition (old recordings: the added field appended)."""
+    if not m.old_schema:
+        return m.data
+    _, value, fmt = ADDED_FIELDS[m.type_name]
+    little = len(m.data) >= 2 and m.data[1] & 1  # encapsulation id: CDR_LE = 0x0001
+    size = struct.calcsize(fmt)
+    pad = (-(len(m.data) - 4)) % size  # alignment counts from the end of the 4-byte header
+    return m.data + b"\0" * pad + struct.pack(("<" if little else ">") + fmt, value)
 
 
 def decode(m: RawMessage) -> Any:
-    return deserialize_message(m.data, message_class(m.type_name))
+    return deserialize_message(current_cdr(m), message_class(m.type_name))
 
 
 def fresh_path(path: Path) -> Path:
@@ -115,6 +147,8 @@ def read_recording(path: str | Path) -> Recording:
     path = Path(path)
     rec = Recording(path)
     schemas: dict[int, str] = {}
+    old: set[int] = set()  # schema ids that predate a field of ADDED_FIELDS
+    old_channels: set[int] = set()
     channels: dict[int, tuple[str, str, str]] = {}
     last_end: int | None = None
     last_offset: int | None = None
@@ -122,10 +156,14 @@ def read_recording(path: str | Path) -> Recording:
     def take(record: Any) -> None:
         if isinstance(record, Schema):
             schemas[record.id] = record.name
+            if lacks_added_field(record.name, bytes(record.data).decode(errors="replace")):
+                old.add(record.id)
             rec.schemas.setdefault(record.id, record)
         elif isinstance(record, Channel):
             channels[record.id] = (record.topic, schemas.get(record.schema_id, ""),
                                    record.message_encoding)
+            if record.schema_id in old:
+                old_channels.add(record.id)
             rec.channels.setdefault(record.id, record)
         elif isinstance(record, Header):
             rec.profile = record.profile
@@ -133,7 +171,7 @@ def read_recording(path: str | Path) -> Recording:
             topic, type_name, encoding = channels[record.channel_id]
             rec.messages.append(RawMessage(topic, type_name, record.log_time, bytes(record.data),
                                            encoding, record.channel_id, record.publish_time,
-                                           record.sequence))
+                                           record.sequence, record.channel_id in old_channels))
 
     with path.open("rb") as stream:
         if stream.read(8) != b"\x89MCAP0\r\n":
@@ -160,7 +198,7 @@ def read_recording(path: str | Path) -> Recording:
 
 def viz_topics(rec: Recording) -> dict[str, int]:
     """Message counts of the viz channels (``/viz/...``, protobuf/JSON) the recording holds."""
-    from sdhn_sim.viz_channels import is_viz_channel
+    from sdhn_sim.viz.channels import is_viz_channel
 
     found = {c.topic: 0 for c in rec.channels.values()
              if is_viz_channel(c.topic, c.message_encoding)}
@@ -174,16 +212,16 @@ def team_namespace(rec: Recording) -> str | None:
     """The namespace of the first recorded TeamState topic ('/sdhn'), None without one."""
     for m in rec.messages:
         if m.encoding == "cdr" and m.type_name == "sdhn_msgs/msg/TeamState":
-            return m.topic.rsplit("/", 1)[0]
+            return topics.team_of(m.topic, topics.STATE)
     return None
 
 
 def team_kind(topic: str, type_name: str, encoding: str, ns: str) -> str | None:
     """'state' / 'hypergraph' / 'episode' for the team's own CDR topics of those types."""
-    from sdhn_sim.viz_channels import KINDS
+    from sdhn_sim.viz.channels import KINDS
 
     kind = KINDS.get(type_name) if encoding == "cdr" else None
-    if kind is None or topic != f"{ns}/{kind}":
+    if kind is None or topics.team_of(topic, kind) != ns:
         return None
     return kind
 
@@ -200,10 +238,10 @@ class VizUpgrade:
 def write_with_viz(rec: Recording, out: Path, chunk_bytes: int = 256 * 1024) -> VizUpgrade:
     """Write ``out``: every message of ``rec`` (same schemas, channels, times, sequence numbers,
     in file order) plus the viz channels derived from the team's state, hypergraph and episode
-    messages (``sdhn_sim.viz_channels``), each right after its source message."""
+    messages (``sdhn_sim.viz.channels``), each right after its source message."""
     from mcap.writer import CompressionType, Writer
 
-    from sdhn_sim.viz_channels import VizDeriver, VizMcapChannels
+    from sdhn_sim.viz.channels import VizDeriver, VizMcapChannels
 
     ns = team_namespace(rec)
     deriver = VizDeriver()
@@ -252,7 +290,7 @@ class EpisodeRow:
 
 def summaries_from_messages(rec: Recording) -> dict[int, EpisodeRow]:
     rows = {}
-    for _, m in rec.decoded("/episode"):
+    for _, m in rec.decoded(f"/{topics.EPISODE}"):
         rows[int(m.episode)] = EpisodeRow(
             int(m.episode), str(m.env_name), int(m.length), bool(m.completed),
             int(m.makespan) if m.completed else None, float(m.episode_return),
@@ -263,11 +301,11 @@ def summaries_from_messages(rec: Recording) -> dict[int, EpisodeRow]:
 def summaries_from_states(rec: Recording) -> dict[int, EpisodeRow]:
     """Episodes whose terminal TeamState was recorded, recomputed from the states (see above)."""
     steps: dict[int, dict[int, Any]] = {}
-    for _, s in rec.decoded("/state"):
+    for _, s in rec.decoded(f"/{topics.STATE}"):
         steps.setdefault(int(s.episode), {})[int(s.step)] = s
     versions: dict[int, int] = {}
     for raw in rec.messages:
-        if raw.encoding == "cdr" and raw.topic.endswith("/action"):
+        if raw.encoding == "cdr" and raw.topic.endswith(f"/{topics.ACTION}"):
             a = decode(raw)
             versions[int(a.episode)] = max(versions.get(int(a.episode), 0), int(a.policy_version))
     rows = {}
@@ -316,45 +354,43 @@ class EpisodeFrames:
     map_note: str
 
 
-def find_maif_instance(env_name: str, positions: npt.NDArray[np.int64],
-                       all_positions: npt.NDArray[np.int64]
-                       ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64], int] | None:
-    """(obstacles, goals, instance id) of the MAIF instance that starts at ``positions``."""
+def maif_world(env_name: str, instance_id: int
+               ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64]] | None:
+    """(obstacles, goals) of MAIF instance ``instance_id`` of ``env_name``; None when the
+    environment has no numbered instances or the id is unknown (-1) or out of range."""
     from sdhn_sim.envs.maif_instances import MAIF_CONFIGS, load_instances
 
-    if env_name not in MAIF_CONFIGS:
+    if env_name not in MAIF_CONFIGS or instance_id < 0:
         return None
     inst = load_instances(env_name)
-    for k in range(inst.num_instances):
-        obstacles, starts, goals = inst.instance(k)
-        if starts.shape != positions.shape or not np.array_equal(starts, positions):
-            continue
-        xs, ys = all_positions[..., 0], all_positions[..., 1]
-        inside = (xs >= 0) & (ys >= 0) & (xs < obstacles.shape[1]) & (ys < obstacles.shape[0])
-        if inside.all() and not obstacles[ys, xs].any():
-            return obstacles.astype(bool), goals, k
-    return None
+    if instance_id >= inst.num_instances:
+        return None
+    obstacles, _, goals = inst.instance(instance_id)
+    return obstacles.astype(bool), goals
 
 
 def episode_frames(rec: Recording, episode: int, cell_px: int = 16) -> EpisodeFrames:
     """One RGB image per recorded TeamState of ``episode`` (KeyError if none was recorded)."""
     from sdhn_sim.envs.render import render_grid
 
-    states = sorted(((int(s.step), s) for _, s in rec.decoded("/state")
+    states = sorted(((int(s.step), s) for _, s in rec.decoded(f"/{topics.STATE}")
                      if int(s.episode) == episode), key=lambda x: x[0])
     if not states:
         raise KeyError(episode)
     positions = np.stack([np.frombuffer(s.positions, dtype=np.int32).astype(np.int64).reshape(-1, 2)
                           for _, s in states])  # [T, N, 2]
-    env_name = str(states[0][1].env_name)
-    found = (find_maif_instance(env_name, positions[0], positions) if states[0][0] == 0
-             else None)
+    env_name, k = str(states[0][1].env_name), int(states[0][1].instance_id)
+    found = maif_world(env_name, k)
     if found is not None:
-        obstacles, goals, k = found
-        note = f"map: {env_name} instance {k} (matched by start cells)"
+        obstacles, goals = found
+        note = f"map: {env_name} instance {k} (from TeamState.instance_id)"
     else:
         size = int(positions.max()) + 1 if positions.size else 1
         obstacles, goals = np.zeros((size, size), bool), None
-        note = f"map: none found for {env_name}; robots on a blank grid"
+        maif = env_name.startswith("maif")
+        why = ("the recording predates TeamState.instance_id" if maif and k < 0 else
+               f"instance {k} is not in the installed {env_name} set" if maif else
+               f"{env_name} has no numbered instances")
+        note = f"map: unknown ({why}); robots on a blank grid"
     images = [render_grid(obstacles, p, goals, cell_px) for p in positions]
     return EpisodeFrames(episode, [t for t, _ in states], images, note)

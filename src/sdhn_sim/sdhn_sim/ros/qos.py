@@ -1,4 +1,4 @@
-"""Every QoS profile of the sdhn graph, defined once and chosen by name (see DESIGN.md, ROS graph).
+"""Every QoS profile of the sdhn graph, defined once and chosen by name (docs/ros-graph.md).
 
 A publisher and its subscribers must use the same profile: a reliable subscriber never matches a
 best-effort publisher, and a transient-local subscriber gets nothing latched from a volatile one.

@@ -3,7 +3,8 @@
 Subscribes to ``{team_ns}/state``, ``{team_ns}/hypergraph`` and ``{team_ns}/episode`` and serves a
 Foxglove WebSocket (Foxglove SDK for Python; protobuf ``foxglove.*`` schemas and JSON) with channels
 ``/viz/scene``, ``/viz/hypergraph`` (SceneUpdate), ``/viz/hypergraph/p_h`` (RawImage),
-``/viz/metrics`` and ``/viz/episodes`` (JSON). Drawing lives in ``viz_scene`` (ROS-free).
+``/viz/metrics`` and ``/viz/episodes`` (JSON). Parsing, drawing and state live in ``world``,
+``draw`` and ``renderer`` (ROS-free).
 
 Nothing is built or encoded for a channel no client subscribes to (``Channel.has_sinks``): the
 callbacks only validate and keep a short trail. The scene is sent at most ``max_rate`` times per
@@ -27,20 +28,15 @@ from rclpy.context import Context
 from rclpy.node import Node
 
 from sdhn_msgs.msg import EpisodeSummary, Hypergraph, TeamState
-from sdhn_sim.base_node import ConfigError, run_node
 from sdhn_sim.envs.registry import env_names
-from sdhn_sim.qos import SENSOR, STEP
-from sdhn_sim.viz_scene import (
-    EPISODE_SCHEMA,
-    METRICS_SCHEMA,
-    TOPIC_EPISODES,
-    TOPIC_HYPERGRAPH,
-    TOPIC_METRICS,
-    TOPIC_P_H,
-    TOPIC_SCENE,
-    BadInput,
-    VizRenderer,
-)
+from sdhn_sim.ros import topics
+from sdhn_sim.ros.params import declare, integer, string
+from sdhn_sim.ros.qos import SENSOR, STEP
+from sdhn_sim.ros.runner import ConfigError, run_node
+from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
+from sdhn_sim.viz.channels import EPISODE_SCHEMA, METRICS_SCHEMA
+from sdhn_sim.viz.renderer import VizRenderer
+from sdhn_sim.viz.world import BadInput
 
 STATIC_PERIOD_S = 5.0
 
@@ -58,24 +54,26 @@ class _Subscriptions(ServerListener):
         return None
 
 
-def _check_params(
-    team_ns: str, env: str, host: str, port: int, *, max_rate: float, trail: int
-) -> None:
-    if not team_ns.startswith("/") or (team_ns.endswith("/") and team_ns != "/"):
-        raise ConfigError(
-            f"team_ns: {team_ns!r} must be absolute without a trailing '/'; e.g. /sdhn"
-        )
+def _check_params(team_ns: str, env: str, host: str) -> None:
+    """What the descriptors cannot say: the namespace rule, a known env, a non-empty host."""
+    try:
+        topics.check_team_ns(team_ns)
+    except topics.NamespaceError as e:
+        raise ConfigError(str(e)) from None
     if env and env not in env_names():
         raise ConfigError(f"env: unknown environment {env!r}; allowed: '' (from messages), "
                           f"{', '.join(env_names())}")
     if not host:
         raise ConfigError("host: empty; allowed: an address or name, e.g. 127.0.0.1")
-    if not 0 <= port <= 65535:
-        raise ConfigError(f"port: {port}; allowed: 0..65535 (0 = any free port)")
-    if not max_rate >= 0.0:
-        raise ConfigError(f"max_rate: {max_rate}; allowed: >= 0 Hz (0 = every state)")
-    if trail < 1:
-        raise ConfigError(f"trail_length: {trail}; allowed: >= 1 steps")
+
+
+PARAMETERS = {
+    "team_ns": (topics.DEFAULT_TEAM_NS, string(f"team namespace; {topics.TEAM_NS_RULE}")),
+    "env": ("", string("environment to draw; '' = whatever the messages name")),
+    "host": ("127.0.0.1", string("address the Foxglove WebSocket server binds")),
+    "port": (8765, integer("Foxglove WebSocket port; 0 = any free port", 0, 65535)),
+    "trail_length": (12, integer("steps of trail drawn behind each robot", 1, 10_000)),
+}
 
 
 def _is_loopback(host: str) -> bool:
@@ -88,13 +86,11 @@ def _is_loopback(host: str) -> bool:
 class VizNode(Node):
     def __init__(self, context: Context) -> None:
         super().__init__("viz", context=context)
-        team_ns = str(self.declare_parameter("team_ns", "/sdhn").value)
-        env = str(self.declare_parameter("env", "").value)
-        host = str(self.declare_parameter("host", "127.0.0.1").value)
-        port = int(self._number("port", 8765, int))
-        max_rate = self._number("max_rate", 30.0, float)
-        trail = int(self._number("trail_length", 12, int))
-        _check_params(team_ns, env, host, port, max_rate=max_rate, trail=trail)
+        p = declare(self, PARAMETERS)
+        team_ns, env, host = str(p["team_ns"]), str(p["env"]), str(p["host"])
+        port, trail = int(p["port"]), int(p["trail_length"])
+        max_rate = self._rate("max_rate", 30.0)
+        _check_params(team_ns, env, host)
 
         self.fox = foxglove.Context()
         self.listener = _Subscriptions()
@@ -106,11 +102,11 @@ class VizNode(Node):
         except RuntimeError as error:
             reason = str(error).split(": ", 1)[-1]
             raise ConfigError(f"port: cannot serve on {host}:{port} ({reason})") from None
-        self.scene_ch = SceneUpdateChannel(TOPIC_SCENE, context=self.fox)
-        self.hyper_ch = SceneUpdateChannel(TOPIC_HYPERGRAPH, context=self.fox)
-        self.p_h_ch = RawImageChannel(TOPIC_P_H, context=self.fox)
-        self.metrics_ch = foxglove.Channel(TOPIC_METRICS, schema=METRICS_SCHEMA, context=self.fox)
-        self.episode_ch = foxglove.Channel(TOPIC_EPISODES, schema=EPISODE_SCHEMA, context=self.fox)
+        self.scene_ch = SceneUpdateChannel(VIZ_SCENE, context=self.fox)
+        self.hyper_ch = SceneUpdateChannel(VIZ_HYPERGRAPH, context=self.fox)
+        self.p_h_ch = RawImageChannel(VIZ_P_H, context=self.fox)
+        self.metrics_ch = foxglove.Channel(VIZ_METRICS, schema=METRICS_SCHEMA, context=self.fox)
+        self.episode_ch = foxglove.Channel(VIZ_EPISODES, schema=EPISODE_SCHEMA, context=self.fox)
 
         self.renderer = VizRenderer(env=env, trail_length=trail)
         self.min_period = 1.0 / max_rate if max_rate > 0 else 0.0
@@ -120,10 +116,13 @@ class VizNode(Node):
         self.dropped: dict[str, int] = {}
         self.encoded = 0
 
-        ns = team_ns.rstrip("/")
-        self.create_subscription(TeamState, f"{ns}/state", self.on_state, STEP)
-        self.create_subscription(Hypergraph, f"{ns}/hypergraph", self.on_hypergraph, SENSOR)
-        self.create_subscription(EpisodeSummary, f"{ns}/episode", self.on_episode, STEP)
+        ns = team_ns
+        self.create_subscription(TeamState, topics.absolute(ns, topics.STATE), self.on_state,
+                                 STEP)
+        self.create_subscription(Hypergraph, topics.absolute(ns, topics.HYPERGRAPH),
+                                 self.on_hypergraph, SENSOR)
+        self.create_subscription(EpisodeSummary, topics.absolute(ns, topics.EPISODE),
+                                 self.on_episode, STEP)
         if not _is_loopback(host):
             self.get_logger().warning(f"serving beyond loopback on {host}: anyone who can reach "
                                       "it can watch")
@@ -132,15 +131,13 @@ class VizNode(Node):
             f"env={env or '(from msgs)'}"
         )
 
-    def _number(self, name: str, default: float, kind: type) -> float:
-        """A numeric parameter that accepts 0 as well as 0.0; a wrong type is a ConfigError."""
-        value = self.declare_parameter(
-            name, default, ParameterDescriptor(dynamic_typing=True)
-        ).value
-        if isinstance(value, bool) or not isinstance(value, int | float) or (
-            kind is int and not float(value).is_integer()
-        ):
-            raise ConfigError(f"{name}: {value!r} is not a{'n int' if kind is int else ' number'}")
+    def _rate(self, name: str, default: float) -> float:
+        """A rate in Hz that accepts 0 as well as 0.0 (dynamic typing: a double descriptor would
+        refuse ``max_rate:=0``); anything but a number >= 0 is a ConfigError."""
+        value = self.declare_parameter(name, default, ParameterDescriptor(
+            dynamic_typing=True, description="most scenes per second sent; 0 = every state")).value
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0.0:
+            raise ConfigError(f"{name}: {value!r}; allowed: a number >= 0 Hz (0 = every state)")
         return float(value)
 
     # -- input

@@ -1,10 +1,12 @@
 """The one ``main`` loop every sdhn node runs: init, build the node, spin, stop cleanly.
 
 Why not ``rclpy.spin``: the events executor of the Jazzy wheels busy-loops and ignores signals
-when spun without a timeout (DESIGN.md), so we spin in short slices. SIGINT and SIGTERM set a flag
-instead of rclpy's own handler shutting the context down under us, so the node can still log and
-flush (``on_stop``) before it is destroyed; the exit code is then 0. A configuration error found
-while building the node exits with code 2 and one line on stderr, before any topic is created.
+when spun without a timeout (docs/ros-graph.md), so we spin in short slices. SIGINT and SIGTERM
+set a flag instead of rclpy's own handler shutting the context down under us, so the node can
+still log and flush (``on_stop``) before it is destroyed; the exit code is then 0. A
+configuration error found while building the node exits with code 2 and one line on stderr,
+before any topic is created. Once the node is built, the ready file of :mod:`sdhn_sim.ros.status`
+is written (when asked for).
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+
+from sdhn_sim.ros.status import write_ready
 
 
 class ConfigError(ValueError):
@@ -54,6 +58,7 @@ def run_node(
             return 2
         executor = EventsExecutor(context=context)
         executor.add_node(node)
+        write_ready(node.get_name(), node.get_namespace())
         try:
             while context.ok() and not stop.is_set():
                 executor.spin_once(timeout_sec=SPIN_SLICE_S)

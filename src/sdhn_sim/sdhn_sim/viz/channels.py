@@ -34,19 +34,52 @@ from typing import Any
 from foxglove.messages import RawImage, SceneUpdate
 from mcap.writer import Writer
 
-from sdhn_sim.viz_scene import (
-    EPISODE_SCHEMA,
-    METRICS_SCHEMA,
-    TOPIC_EPISODES,
-    TOPIC_HYPERGRAPH,
-    TOPIC_METRICS,
-    TOPIC_P_H,
-    TOPIC_SCENE,
-    BadInput,
-    VizRenderer,
-)
+from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
+from sdhn_sim.viz.renderer import VizRenderer
+from sdhn_sim.viz.world import BadInput
 
-VIZ_TOPICS = (TOPIC_SCENE, TOPIC_HYPERGRAPH, TOPIC_P_H, TOPIC_METRICS, TOPIC_EPISODES)
+# The JSON channels' schemas (the protobuf ones come with the Foxglove messages).
+METRICS_SCHEMA: dict[str, Any] = {
+    "title": "sdhn.VizMetrics",
+    "type": "object",
+    "properties": {
+        "env": {"type": "string"},
+        "episode": {"type": "integer"},
+        "step": {"type": "integer"},
+        "step_rate": {"type": "number", "description": "team states per second (recent)"},
+        "team_reward": {"type": "number"},
+        "return_so_far": {"type": "number"},
+        "makespan_so_far": {"type": "integer"},
+        "missed_actions": {"type": "integer"},
+        "last_return": {"type": ["number", "null"]},
+        "last_makespan": {"type": ["integer", "null"], "description": "null = not completed"},
+        "last_collisions": {"type": ["integer", "null"]},
+        "episodes_done": {"type": "integer"},
+        "policy_version": {"type": "integer", "description": "newest weights version seen"},
+        "skewness": {"type": ["number", "null"]},
+        "dropped": {"type": "integer", "description": "malformed input messages dropped"},
+    },
+}
+EPISODE_SCHEMA: dict[str, Any] = {
+    "title": "sdhn.VizEpisode",
+    "type": "object",
+    "properties": {
+        "env": {"type": "string"},
+        "episode": {"type": "integer"},
+        "length": {"type": "integer"},
+        "completed": {"type": "boolean"},
+        "makespan": {"type": ["integer", "null"], "description": "null = not completed (NC)"},
+        "episode_return": {"type": "number"},
+        "collisions": {"type": "integer"},
+        "formation_error": {"type": "number"},
+        "missed_actions": {"type": "integer"},
+        "policy_version": {"type": "integer"},
+        "instance_id": {"type": "integer", "description": "MAIF instance; -1 = not known"},
+    },
+}
+
+
+VIZ_TOPICS = (VIZ_SCENE, VIZ_HYPERGRAPH, VIZ_P_H, VIZ_METRICS, VIZ_EPISODES)
 # ROS message type -> VizRenderer kind
 KINDS = {
     "sdhn_msgs/msg/TeamState": "state",
@@ -75,11 +108,11 @@ def channel_specs() -> dict[str, ChannelSpec]:
         return ChannelSpec(str(schema["title"]), "jsonschema", json.dumps(schema).encode(), "json")
 
     return {
-        TOPIC_SCENE: proto(SceneUpdate),
-        TOPIC_HYPERGRAPH: proto(SceneUpdate),
-        TOPIC_P_H: proto(RawImage),
-        TOPIC_METRICS: js(METRICS_SCHEMA),
-        TOPIC_EPISODES: js(EPISODE_SCHEMA),
+        VIZ_SCENE: proto(SceneUpdate),
+        VIZ_HYPERGRAPH: proto(SceneUpdate),
+        VIZ_P_H: proto(RawImage),
+        VIZ_METRICS: js(METRICS_SCHEMA),
+        VIZ_EPISODES: js(EPISODE_SCHEMA),
     }
 
 
@@ -125,19 +158,19 @@ class VizDeriver:
         if kind == "state":
             # the step rate in the metrics comes from the states' header stamps, as in render()
             frame = r.on_state(msg)
-            return [(TOPIC_SCENE, self._scene_bytes(frame)), (TOPIC_METRICS, _json(r.metrics()))]
+            return [(VIZ_SCENE, self._scene_bytes(frame)), (VIZ_METRICS, _json(r.metrics()))]
         if kind == "hypergraph":
             r.on_hypergraph(msg)
             out: list[tuple[str, bytes]] = []
             scene = r.hypergraph_scene()
             if scene is not None:
-                out.append((TOPIC_HYPERGRAPH, scene.encode()))
+                out.append((VIZ_HYPERGRAPH, scene.encode()))
             image = r.p_h_image()
             if image is not None:
-                out.append((TOPIC_P_H, image.encode()))
+                out.append((VIZ_P_H, image.encode()))
             return out
         if kind == "episode":
-            return [(TOPIC_EPISODES, _json(r.on_episode(msg)))]
+            return [(VIZ_EPISODES, _json(r.on_episode(msg)))]
         raise ValueError(f"kind must be state, hypergraph or episode, got {kind!r}")
 
     def _scene_bytes(self, frame: Any) -> bytes:

@@ -1,8 +1,9 @@
 """``ros2msg`` schema text for MCAP channels, built from the installed ``.msg`` definitions.
 
-The layout follows ROS 2's own recorder, which Foxglove's strict parser expects (DESIGN.md): the
-root definition first, then each nested type once, behind a line of 80 ``=`` and a ``MSG:`` header
-that spells the type exactly as the fields do (``std_msgs/Header``, never ``std_msgs/msg/Header``).
+The layout follows ROS 2's own recorder, which Foxglove's strict parser expects
+(docs/ros-graph.md): the root definition first, then each nested type once, behind a line of
+80 ``=`` and a ``MSG:`` header that spells the type exactly as the fields do
+(``std_msgs/Header``, never ``std_msgs/msg/Header``).
 """
 
 from __future__ import annotations
@@ -10,8 +11,11 @@ from __future__ import annotations
 import os
 import re
 import sys
+from collections.abc import Callable
 from functools import cache
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 PRIMITIVES = frozenset(
     [
@@ -44,6 +48,53 @@ def _split(type_name: str) -> tuple[str, str]:
     if len(parts) == 2:
         return parts[0], parts[1]
     raise ValueError(f"not a ROS message type name: {type_name!r} (want pkg/msg/Type)")
+
+
+def _sdhn_msgs() -> ModuleType:
+    import sdhn_msgs.msg
+
+    return sdhn_msgs.msg
+
+
+def _std_msgs() -> ModuleType:
+    import std_msgs.msg
+
+    return std_msgs.msg
+
+
+def _builtin_interfaces() -> ModuleType:
+    import builtin_interfaces.msg
+
+    return builtin_interfaces.msg
+
+
+# The message packages a recording may hold, by name: a type name read from a file or from the
+# graph only ever selects one of these; it never names a module to import.
+MESSAGE_PACKAGES: dict[str, Callable[[], ModuleType]] = {
+    "sdhn_msgs": _sdhn_msgs,
+    "std_msgs": _std_msgs,
+    "builtin_interfaces": _builtin_interfaces,
+}
+
+
+class UnknownMessageType(LookupError):
+    """A type name outside :data:`MESSAGE_PACKAGES`, or not a class in its package."""
+
+
+def message_class(type_name: str) -> Any:
+    """'pkg/msg/Type' (or 'pkg/Type') -> the installed Python message class.
+
+    Raises ValueError for a malformed name, UnknownMessageType for a package outside the
+    allowlist or a type the package does not have."""
+    package, name = _split(type_name)
+    load = MESSAGE_PACKAGES.get(package)
+    if load is None:
+        raise UnknownMessageType(f"{type_name}: package {package!r} is not one this project "
+                                 f"records; allowed: {', '.join(MESSAGE_PACKAGES)}")
+    cls = getattr(load(), name, None)
+    if not isinstance(cls, type):
+        raise UnknownMessageType(f"{type_name}: {package} has no message {name!r}")
+    return cls
 
 
 @cache

@@ -7,7 +7,7 @@
                    (1 = as recorded), with the contract's QoS (policy/weights latched, hypergraph
                    best effort, the rest STEP). Waits up to --wait seconds for subscribers first.
 --export-episode K PNG frames (frame_<step>.png) of episode K rendered from the recorded TeamState
---out DIR          positions, on the MAIF map matched from the start cells (sdhn_sim.recording).
+--out DIR          positions, on the MAIF map of the recorded instance id (recording.reader).
 --add-viz          write a copy with the viz channels (/viz/scene, /viz/hypergraph,
 --out NEW.mcap     /viz/hypergraph/p_h, /viz/metrics, /viz/episodes) derived from the recorded
                    team messages, for a recording made with viz:=false (default NEW:
@@ -33,7 +33,7 @@ import threading
 import time
 from pathlib import Path
 
-from sdhn_sim.recording import (
+from sdhn_sim.recording.reader import (
     NotMcapError,
     Recording,
     episode_frames,
@@ -160,8 +160,8 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
     """Serve the viz channels derived from ``rec`` on a Foxglove WebSocket, paced by log time."""
     import foxglove
 
-    from sdhn_sim.recording import decode, team_kind, team_namespace
-    from sdhn_sim.viz_channels import VIZ_TOPICS, VizDeriver, channel_specs
+    from sdhn_sim.recording.reader import decode, team_kind, team_namespace
+    from sdhn_sim.viz.channels import VIZ_TOPICS, VizDeriver, channel_specs
 
     ns = team_namespace(rec)
     if ns is None:
@@ -245,8 +245,10 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
     import rclpy
     from rclpy.context import Context
 
-    from sdhn_sim.qos import LATCHED, SENSOR, STEP
-    from sdhn_sim.recording import message_class
+    from sdhn_sim.recording.reader import current_cdr
+    from sdhn_sim.recording.schema import message_class
+    from sdhn_sim.ros import topics
+    from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
     context = Context()
     rclpy.init(context=context)
@@ -256,8 +258,8 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
     try:
         for m in messages:
             if m.topic not in pubs:
-                profile = (LATCHED if m.topic.endswith("/policy/weights") else
-                           SENSOR if m.topic.endswith("/hypergraph") else STEP)
+                profile = (LATCHED if topics.team_of(m.topic, topics.WEIGHTS) else
+                           SENSOR if topics.team_of(m.topic, topics.HYPERGRAPH) else STEP)
                 pubs[m.topic] = node.create_publisher(message_class(m.type_name), m.topic, profile)
         deadline = time.monotonic() + wait
         while time.monotonic() < deadline and any(p.get_subscription_count() == 0
@@ -271,7 +273,7 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
             delay = (m.log_time_ns - t0) / 1e9 / rate - (time.monotonic() - start)
             if delay > 0:
                 time.sleep(delay)
-            pubs[m.topic].publish(m.data)
+            pubs[m.topic].publish(current_cdr(m))
         print(f"republished {len(ordered)} messages on {len(pubs)} topics in "
               f"{time.monotonic() - start:.2f} s (rate {rate}x)")
         time.sleep(0.2)  # let reliable writers hand the last samples over

@@ -1,0 +1,1 @@
+"""MCAP recordings: the writer, its schemas, the recorder node, the reader and replay."""

@@ -12,6 +12,7 @@ Sets for the shipped configurations live in ``sdhn_sim/data/<name>.npz`` (writte
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,6 +65,13 @@ MAIF_CONFIGS: dict[str, MaifConfig] = {
     )
 }
 SHIPPED = ("maif-tiny", "maif-10", "maif-16", "maif-20")
+HELDOUT_SEED_OFFSET = 500_000
+"""Held-out instances of a configuration: the same generator with ``instance_seed`` + this."""
+
+
+def heldout_config(cfg: MaifConfig) -> MaifConfig:
+    """The configuration of ``cfg``'s held-out instance set (maps a policy never trained on)."""
+    return dataclasses.replace(cfg, instance_seed=cfg.instance_seed + HELDOUT_SEED_OFFSET)
 
 
 @dataclass(frozen=True)

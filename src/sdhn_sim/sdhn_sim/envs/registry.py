@@ -3,7 +3,9 @@
 MAIF: ``maif-tiny`` (4 robots, 12x12, fs 4), ``maif-10`` (32, fs 7), ``maif-16`` (48, fs 9),
 ``maif-20`` (64, fs 11), ``maif-30`` (80, fs 13), ``maif-40`` (96, fs 15).
 Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100)),
-``instance_order`` ("random" | "round_robin").
+``instance_order`` ("random" | "round_robin"), ``reward`` ("corrected" (default) | "reference"),
+``instance_set`` ("train" (default): the 100 fixed instances | "heldout": 100 instances drawn
+with another generator seed, for evaluation on maps never trained on).
 
 RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``.
 Overrides: ``max_steps``, ``size`` ("tiny" | "small" | "medium" | "large"),
@@ -16,11 +18,12 @@ from typing import Any
 
 from .api import BatchedEnv
 from .maif import MaifEnv
-from .maif_instances import MAIF_CONFIGS
+from .maif_instances import MAIF_CONFIGS, heldout_config, load_instances
 from .rware_env import RwareEnv
 from .single import SingleEnv
 
-MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order")
+MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order", "reward", "instance_set")
+INSTANCE_SETS = ("train", "heldout")
 RWARE_OVERRIDES = ("max_steps", "size", "difficulty")
 RWARE_TASKS = {"rware-3": 3, "rware-6": 6, "rware-9": 9}
 
@@ -40,7 +43,11 @@ def make_env(name: str, num_envs: int = 1, seed: int = 0, **overrides: Any) -> B
     """A batched environment by name (see ``env_names()``)."""
     if name in MAIF_CONFIGS:
         _check_overrides(name, overrides, MAIF_OVERRIDES)
-        return MaifEnv(MAIF_CONFIGS[name], num_envs=num_envs, seed=seed, name=name, **overrides)
+        which = overrides.pop("instance_set", "train")
+        if which not in INSTANCE_SETS:
+            raise ValueError(f"instance_set must be one of {list(INSTANCE_SETS)}, got {which!r}")
+        cfg = MAIF_CONFIGS[name] if which == "train" else heldout_config(MAIF_CONFIGS[name])
+        return MaifEnv(load_instances(cfg), num_envs=num_envs, seed=seed, name=name, **overrides)
     if name in RWARE_TASKS:
         _check_overrides(name, overrides, RWARE_OVERRIDES)
         return RwareEnv(RWARE_TASKS[name], num_envs=num_envs, seed=seed, name=name, **overrides)

@@ -47,7 +47,7 @@ def weights_error_kind(reason: str) -> str:
         return "oversized_payload"
     if "sha256" in text:
         return "bad_sha256"
-    if "format" in text and "unknown" in text:
+    if "format" in text and ("unknown" in text or "no longer accepted" in text):
         return "unknown_format"
     if "shape" in text or "tensor" in text or "dtype" in text:
         return "bad_tensors"

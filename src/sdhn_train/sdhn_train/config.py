@@ -21,6 +21,8 @@ ENV_NAMES: tuple[str, ...] = (
 )
 ALGO_NAMES: tuple[str, ...] = ("sdhn", "mappo", "qmix", "dicg", "hgcn_mix")
 NOISES: tuple[str, ...] = ("logistic", "gumbel_paper")
+MAIF_REWARD_NAMES: tuple[str, ...] = ("corrected", "reference")
+FEATURES: tuple[str, ...] = ("auto", "identity", "maif-ego/1")
 
 
 class ConfigError(ValueError):
@@ -37,6 +39,10 @@ class EnvConfig:
     name: str = opt("maif-10", f"environment, one of {', '.join(ENV_NAMES)}")
     num_envs: int = opt(32, "B: environments stepped together in one process")
     max_steps: int | None = opt(None, "episode step limit; null = the environment's (500 MAIF)")
+    reward: str = opt("corrected", f"MAIF reward, one of {', '.join(MAIF_REWARD_NAMES)} "
+                                   "(ignored by RWARE)")
+    features: str = opt("auto", f"actor/critic input features, one of {', '.join(FEATURES)} "
+                                "(auto = maif-ego/1 for MAIF, identity otherwise)")
 
 
 @dataclass
@@ -137,7 +143,9 @@ class TrainConfig:
 @dataclass
 class EvalConfig:
     interval: int = opt(50_000, "team env-steps between greedy evaluations (0 = never)")
-    episodes: int = opt(16, "fixed evaluation instances (one episode each)")
+    episodes: int = opt(16, "RWARE: evaluation episodes (one per env, from eval.seed)")
+    instances: int = opt(100, "MAIF: instances 0..k-1 of the training and of the held-out set, "
+                              "one greedy episode each")
     seed: int = opt(12345, "seed of the fixed evaluation instances")
 
 
@@ -254,6 +262,9 @@ def validate(cfg: Config) -> None:
     need(cfg.env.name in ENV_NAMES, "env.name", ", ".join(ENV_NAMES), cfg.env.name)
     need(cfg.algo.name in ALGO_NAMES, "algo.name", ", ".join(ALGO_NAMES), cfg.algo.name)
     need(cfg.sdhn.noise in NOISES, "sdhn.noise", ", ".join(NOISES), cfg.sdhn.noise)
+    need(cfg.env.reward in MAIF_REWARD_NAMES, "env.reward", ", ".join(MAIF_REWARD_NAMES),
+         cfg.env.reward)
+    need(cfg.env.features in FEATURES, "env.features", ", ".join(FEATURES), cfg.env.features)
     positive = {
         "env.num_envs": cfg.env.num_envs, "train.total_steps": cfg.train.total_steps,
         "train.threads": cfg.train.threads, "ppo.rollout_len": cfg.ppo.rollout_len,
@@ -264,6 +275,7 @@ def validate(cfg: Config) -> None:
         "sdhn.hgcn_hidden": cfg.sdhn.hgcn_hidden,
         "sdhn.hgcn_layers": cfg.sdhn.hgcn_layers, "sdhn.state_hidden": cfg.sdhn.state_hidden,
         "actor.gru_hidden": cfg.actor.gru_hidden, "eval.episodes": cfg.eval.episodes,
+        "eval.instances": cfg.eval.instances,
         "qmix.buffer_episodes": cfg.qmix.buffer_episodes,
         "qmix.batch_episodes": cfg.qmix.batch_episodes,
         "qmix.updates_per_rollout": cfg.qmix.updates_per_rollout,

@@ -30,6 +30,7 @@ from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms import EnvInfo, build_learner
 from sdhn_train.config import Config
 from sdhn_train.critics import Critic, SDHNCritic
+from sdhn_train.env_features import featurize_assembled
 from sdhn_train.hypergraph import binary_concrete
 from sdhn_train.skewness import hyperedge_degrees, sample_skewness, squashed_skewness
 from sdhn_train.trainer import seed_everything
@@ -136,6 +137,7 @@ class RemoteLearner:
         return actor_h[None].numpy().copy(), critic_h.numpy().copy()
 
     def train(self, a: AssembledRollout, max_hypergraphs: int = 0) -> UpdateResult:
+        a = featurize_assembled(a, self.info.features)  # messages carry raw observations
         actor_h0, critic_h0 = self.initial_hidden(a)
         r = a.rollout
         r.actor_h0, r.critic_h0 = actor_h0, critic_h0

@@ -24,10 +24,12 @@ from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms import EnvInfo, build_learner
 from sdhn_train.config import Config
+from sdhn_train.env_features import make_training_env, unwrap
+from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs, reward_name
 from sdhn_train.figures import write_ph_snapshot
 from sdhn_train.ppo import NonFiniteLossError
 from sdhn_train.rollout import Rollout
-from sdhn_train.runner import RolloutCollector, evaluate_greedy
+from sdhn_train.runner import RolloutCollector
 
 EnvFactory = Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
 
@@ -95,10 +97,9 @@ class Trainer:
                  run_dir: Path | None = None) -> None:
         self.cfg = cfg
         self.np_rng = seed_everything(cfg.train.seed, cfg.train.deterministic, cfg.train.threads)
-        overrides = {} if cfg.env.max_steps is None else {"max_steps": cfg.env.max_steps}
-        self.env = env_factory(cfg.env.name, cfg.env.num_envs, cfg.train.seed, **overrides)
-        self.eval_env = (env_factory(cfg.env.name, cfg.eval.episodes, cfg.eval.seed, **overrides)
-                         if cfg.eval.interval > 0 else None)
+        self.env = make_training_env(cfg, env_factory, cfg.env.num_envs, cfg.train.seed)
+        self.eval_envs = make_eval_envs(cfg, env_factory)  # training set "" and held-out set
+        self.eval_env = self.eval_envs.get("")
         self.learner = build_learner(cfg, EnvInfo.of(self.env), self.np_rng)
         self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len,
                                           getattr(self.learner, "sample_actions", None))
@@ -115,7 +116,7 @@ class Trainer:
     def save_checkpoint(self) -> Path:
         lr = self.learner
         arrays, meta = ckpt.learner_state(lr)
-        env_arrays, env_values = ckpt.env_snapshot(self.env)
+        env_arrays, env_values = ckpt.env_snapshot(unwrap(self.env))
         arrays.update({f"env.{k}": v for k, v in env_arrays.items()})
         arrays["collector.obs"] = self.collector.obs
         arrays["collector.state"] = self.collector.state
@@ -136,7 +137,8 @@ class Trainer:
         arrays, meta = ckpt.load_checkpoint(path)
         lr = self.learner
         ckpt.restore_learner_state(lr, arrays, meta)
-        ckpt.env_restore(self.env, {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
+        ckpt.env_restore(unwrap(self.env),
+                         {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
                          meta["env_values"])
         self.collector.obs = arrays["collector.obs"].copy()
         self.collector.state = arrays["collector.state"].copy()
@@ -152,8 +154,8 @@ class Trainer:
 
     def evaluate(self) -> dict[str, float]:
         assert self.eval_env is not None
-        episodes = evaluate_greedy(self.eval_env, self.learner.actor, self.cfg.eval.seed)
-        return episode_metrics("eval", episodes)
+        self.eval_envs[""] = self.eval_env
+        return evaluate_sets(self.eval_envs, self.learner.actor, self.cfg.eval.seed)
 
     def train_iteration(self) -> tuple[dict[str, float], list[EpisodeStats]]:
         """One rollout + one PPO update (the unit that checkpoints and resume line up on)."""
@@ -188,7 +190,9 @@ class Trainer:
                 metrics["charts/steps_per_second"] = sps
                 metrics.update(episode_metrics("charts", episodes))
                 if self.eval_env is not None and self.global_step >= next_eval:
-                    metrics.update(self.evaluate())
+                    metrics.update(evaluated := self.evaluate())
+                    print(f"step {self.global_step}: {headline(evaluated)} "
+                          f"({reward_name(self.env)} reward)", file=out)
                     write_ph_snapshot(self.run_dir, self.global_step, self.learner.critic,
                                       self.last_rollout)
                     next_eval = _next_multiple(self.global_step, cfg.eval.interval)
@@ -215,8 +219,8 @@ class Trainer:
         log.close()
         blob = self.learner.export_actor(version=self.learner.num_updates)
         save_actor_file(self.run_dir / "actor.safetensors", blob)
-        summary = {"global_step": self.global_step, "run_dir": str(self.run_dir),
-                   "actor": str(self.run_dir / "actor.safetensors"), **final,
+        summary = {**final, "reward": reward_name(self.env), "global_step": self.global_step,
+                   "run_dir": str(self.run_dir), "actor": str(self.run_dir / "actor.safetensors"),
                    "timings": asdict(self.collector.timings)}
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
         print(json.dumps(summary), file=out)

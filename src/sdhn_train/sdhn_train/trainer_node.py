@@ -84,6 +84,7 @@ class TrainerNode(Node):
         from sdhn_sim.envs import make_env
         from sdhn_train import checkpoint as ckpt
         from sdhn_train.algorithms import EnvInfo
+        from sdhn_train.env_features import resolve_features, wrap_features
         from sdhn_train.remote_learner import RemoteLearner, latest_checkpoint
 
         existing = latest_checkpoint(run_dir)
@@ -91,8 +92,9 @@ class TrainerNode(Node):
             raise ConfigError(f"run_dir: {run_dir} holds checkpoints of an earlier run; "
                               "allowed: resume:=true, or an empty or new run_dir")
         env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
-        self.info = EnvInfo.of(env)
-        self.learner = RemoteLearner(cfg, self.info, run_dir)
+        self.info = EnvInfo.of(env)  # raw sizes, as the messages carry them
+        learner_env = wrap_features(env, resolve_features(cfg))  # the learner sees features
+        self.learner = RemoteLearner(cfg, EnvInfo.of(learner_env), run_dir)
         try:
             resumed = self.learner.resume_latest() if p["resume"] else None
         except (ckpt.CheckpointError, KeyError, ValueError, RuntimeError) as e:

@@ -17,7 +17,7 @@ from typing import Any
 import yaml
 
 ENV_NAMES: tuple[str, ...] = (
-    "maif-tiny", "maif-10", "maif-16", "maif-20", "rware-3", "rware-6", "rware-9",
+    "maif-solo", "maif-tiny", "maif-10", "maif-16", "maif-20", "rware-3", "rware-6", "rware-9",
 )
 ALGO_NAMES: tuple[str, ...] = ("sdhn", "mappo", "qmix", "dicg", "hgcn_mix")
 NOISES: tuple[str, ...] = ("logistic", "gumbel_paper")

@@ -56,6 +56,7 @@ def _cfg(name: str, n: int, size: int, fs: int, seed: int) -> MaifConfig:
 MAIF_CONFIGS: dict[str, MaifConfig] = {
     c.name: c
     for c in (
+        _cfg("maif-solo", 1, 12, 4, 1001),  # one robot alone on a maif-tiny-sized map (tests)
         _cfg("maif-tiny", 4, 12, 4, 1004),
         _cfg("maif-10", 10, 32, 7, 1010),
         _cfg("maif-16", 16, 48, 9, 1016),

@@ -1,6 +1,7 @@
 """Named environments: ``make_env(name, num_envs, seed, **overrides) -> BatchedEnv``.
 
-MAIF: ``maif-tiny`` (4 robots, 12x12, fs 4), ``maif-10`` (32, fs 7), ``maif-16`` (48, fs 9),
+MAIF: ``maif-solo`` (1 robot, 12x12, fs 4), ``maif-tiny`` (4 robots, 12x12, fs 4),
+``maif-10`` (32, fs 7), ``maif-16`` (48, fs 9),
 ``maif-20`` (64, fs 11), ``maif-30`` (80, fs 13), ``maif-40`` (96, fs 15).
 Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100)),
 ``instance_order`` ("random" | "round_robin"), ``reward`` ("corrected" (default) | "reference"),

@@ -150,3 +150,23 @@ def test_rware_keeps_identity() -> None:
     env = make_training_env(cfg, make_env, 2, 0)
     assert not isinstance(env, FeatureEnv)
     assert actor_spec(cfg, EnvInfo.of(env)).features == "identity"
+
+
+def test_featurize_assembled_rollout_also_with_an_empty_prefix() -> None:
+    from sdhn_train.env_features import featurize_assembled
+    from sdhn_train.rollout import Rollout
+    from sdhn_train.transitions import AssembledRollout
+
+    obs = maif_obs_sequence(5)[:, None]  # [T, 1, N, 57]
+    t, n = obs.shape[0], obs.shape[2]
+    r = Rollout(obs, obs.reshape(t, 1, -1), np.zeros((t, 1, n), np.int64),
+                np.zeros((t, 1, n), np.float32), np.zeros((t, 1), np.float32),
+                np.zeros((t, 1), bool), np.zeros((t, 1), bool), obs, obs.reshape(t, 1, -1),
+                np.zeros((1, n, 8), np.float32))
+    for p in (0, 2):
+        a = AssembledRollout(r, np.zeros((t, n), np.int64), [(0, k) for k in range(t)],
+                             obs[:p, 0], obs[:p, 0].reshape(p, n * 57))
+        f = featurize_assembled(a, MAIF_EGO)
+        f.rollout.validate()
+        np.testing.assert_array_equal(f.rollout.state, maif_ego(obs).reshape(t, 1, -1))
+        assert f.prefix_obs.shape == (p, n, 114) and f.prefix_state.shape == (p, n * 114)

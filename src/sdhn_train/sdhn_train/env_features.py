@@ -100,7 +100,7 @@ def featurize_obs(features: str, obs: npt.NDArray[np.float32]
                   ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Raw obs [..., N, D] -> (features [..., N, F], state [..., N * F])."""
     f = get_transform(features)(obs)
-    return f, f.reshape(*f.shape[:-2], -1)
+    return f, f.reshape(*f.shape[:-2], f.shape[-2] * f.shape[-1])  # also for 0 steps
 
 
 EnvFactory = Callable[..., BatchedEnv]

@@ -170,3 +170,20 @@ def test_featurize_assembled_rollout_also_with_an_empty_prefix() -> None:
         f.rollout.validate()
         np.testing.assert_array_equal(f.rollout.state, maif_ego(obs).reshape(t, 1, -1))
         assert f.prefix_obs.shape == (p, n, 114) and f.prefix_state.shape == (p, n * 114)
+
+
+def test_reward_normalizer_scales_by_the_return_std() -> None:
+    from sdhn_train.normalize import RewardNormalizer
+    from sdhn_train.rollout import Rollout
+
+    t, b = 200, 4
+    rng = np.random.default_rng(0)
+    rewards = (rng.normal(size=(t, b)) * 50).astype(np.float32)
+    z = np.zeros((t, b), bool)
+    r = Rollout(np.zeros((t, b, 1, 1), np.float32), np.zeros((t, b, 1), np.float32),
+                np.zeros((t, b, 1), np.int64), np.zeros((t, b, 1), np.float32), rewards.copy(),
+                z, z, np.zeros((t, b, 1, 1), np.float32), np.zeros((t, b, 1), np.float32),
+                np.zeros((b, 1, 1), np.float32))
+    norm = RewardNormalizer(b, gamma=0.0)  # gamma 0: the "return" is the reward itself
+    out = norm(r)
+    np.testing.assert_allclose(out.rewards, rewards / rewards.std(), rtol=2e-3)

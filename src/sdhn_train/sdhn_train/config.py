@@ -41,6 +41,9 @@ class EnvConfig:
     max_steps: int | None = opt(None, "episode step limit; null = the environment's (500 MAIF)")
     reward: str = opt("corrected", f"MAIF reward, one of {', '.join(MAIF_REWARD_NAMES)} "
                                    "(ignored by RWARE)")
+    instance_set: str = opt("train", "MAIF training instances: train (the 100 fixed), large "
+                                     "(1000 from another seed); evaluation always uses train "
+                                     "and heldout")
     features: str = opt("auto", f"actor/critic input features, one of {', '.join(FEATURES)} "
                                 "(auto = maif-ego/1 for MAIF, identity otherwise)")
 
@@ -76,6 +79,8 @@ class PPOConfig:
     target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
                                          "null = algorithm default (sdhn 0.01, mappo 1 = none)")
     reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
+    normalize_rewards: bool = opt(False, "divide rewards by the running std of the discounted "
+                                         "return (in-process trainer; logging unscaled)")
 
 
 @dataclass
@@ -265,6 +270,8 @@ def validate(cfg: Config) -> None:
     need(cfg.env.reward in MAIF_REWARD_NAMES, "env.reward", ", ".join(MAIF_REWARD_NAMES),
          cfg.env.reward)
     need(cfg.env.features in FEATURES, "env.features", ", ".join(FEATURES), cfg.env.features)
+    need(cfg.env.instance_set in ("train", "large"), "env.instance_set", "train, large",
+         cfg.env.instance_set)
     positive = {
         "env.num_envs": cfg.env.num_envs, "train.total_steps": cfg.train.total_steps,
         "train.threads": cfg.train.threads, "ppo.rollout_len": cfg.ppo.rollout_len,

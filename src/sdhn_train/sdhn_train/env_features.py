@@ -38,6 +38,8 @@ def env_overrides(cfg: Config, **extra: Any) -> dict[str, Any]:
         out["max_steps"] = cfg.env.max_steps
     if cfg.env.name.startswith("maif"):
         out["reward"] = cfg.env.reward
+        if cfg.env.instance_set != "train":
+            out["instance_set"] = cfg.env.instance_set
     out.update(extra)
     return out
 

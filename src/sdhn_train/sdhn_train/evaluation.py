@@ -12,6 +12,7 @@ RWARE has no instance sets: ``eval.episodes`` episodes from ``eval.seed`` as bef
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -26,13 +27,16 @@ MAIF_SET_SIZE = 100
 
 
 def make_eval_envs(cfg: Config, factory: EnvFactory) -> dict[str, BatchedEnv]:
-    """{"": training-set env, "heldout_": held-out env} (MAIF), {"": env} otherwise; {} if
-    evaluation is off. Keys are the tag infix of each set's metrics."""
+    """{"": training-set env, "heldout_": held-out env} (MAIF, at the task's 500-step limit even
+    when training uses shorter episodes), {"": env} otherwise; {} if evaluation is off. Keys are
+    the tag infix of each set's metrics."""
     if cfg.eval.interval <= 0:
         return {}
     if not cfg.env.name.startswith("maif"):
         return {"": make_training_env(cfg, factory, cfg.eval.episodes, cfg.eval.seed)}
     k = min(cfg.eval.instances, MAIF_SET_SIZE)
+    cfg = copy.deepcopy(cfg)
+    cfg.env.max_steps = None  # success and makespan always at the task's own step limit (500)
     kw: dict[str, Any] = {"instance_ids": list(range(k)), "instance_order": "round_robin"}
     return {prefix: make_training_env(cfg, factory, k, cfg.eval.seed, instance_set=which, **kw)
             for prefix, which in (("", "train"), ("heldout_", "heldout"))}

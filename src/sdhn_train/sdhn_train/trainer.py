@@ -27,6 +27,7 @@ from sdhn_train.config import Config
 from sdhn_train.env_features import make_training_env, unwrap
 from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs, reward_name
 from sdhn_train.figures import write_ph_snapshot
+from sdhn_train.normalize import RewardNormalizer
 from sdhn_train.ppo import NonFiniteLossError
 from sdhn_train.rollout import Rollout
 from sdhn_train.runner import RolloutCollector
@@ -104,6 +105,8 @@ class Trainer:
         self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len,
                                           getattr(self.learner, "sample_actions", None))
         self.critic_h = self.learner.critic.initial_state(cfg.env.num_envs).numpy()
+        self.reward_norm = (RewardNormalizer(cfg.env.num_envs, cfg.ppo.gamma)
+                            if cfg.ppo.normalize_rewards else None)
         self.global_step = 0
         self.last_checkpoint: Path | None = None
         self.last_rollout: Rollout | None = None  # for P_H snapshots (sdhn_train.figures)
@@ -122,6 +125,8 @@ class Trainer:
         arrays["collector.state"] = self.collector.state
         arrays["collector.actor_h"] = self.collector.actor_h
         arrays["collector.critic_h"] = self.critic_h
+        if self.reward_norm is not None:
+            arrays.update({f"reward_norm.{k}": v for k, v in self.reward_norm.state().items()})
         learner_values: dict[str, Any] = {}
         if hasattr(lr, "extra_state"):  # QMIX/HGCN-MIX: replay buffer, episodes in progress
             extra, learner_values = lr.extra_state()
@@ -144,6 +149,9 @@ class Trainer:
         self.collector.state = arrays["collector.state"].copy()
         self.collector.actor_h = arrays["collector.actor_h"].copy()
         self.critic_h = arrays["collector.critic_h"].copy()
+        if self.reward_norm is not None:
+            self.reward_norm.load_state({k[12:]: v for k, v in arrays.items()
+                                         if k.startswith("reward_norm.")})
         if hasattr(lr, "load_extra_state"):
             lr.load_extra_state({k[8:]: v for k, v in arrays.items() if k.startswith("learner.")},
                                 meta.get("learner", {}))
@@ -161,6 +169,8 @@ class Trainer:
         """One rollout + one PPO update (the unit that checkpoints and resume line up on)."""
         rollout, episodes = self.collector.collect(self.critic_h)
         self.last_rollout = rollout
+        if self.reward_norm is not None:
+            rollout = self.reward_norm(rollout)
         t0 = time.perf_counter()
         metrics = self.learner.update(rollout)
         self.collector.timings.update += time.perf_counter() - t0

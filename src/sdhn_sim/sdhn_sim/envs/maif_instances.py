@@ -70,9 +70,20 @@ HELDOUT_SEED_OFFSET = 500_000
 """Held-out instances of a configuration: the same generator with ``instance_seed`` + this."""
 
 
+LARGE_SEED_OFFSET = 1_000_000
+LARGE_MAPS = 100
+
+
 def heldout_config(cfg: MaifConfig) -> MaifConfig:
     """The configuration of ``cfg``'s held-out instance set (maps a policy never trained on)."""
     return dataclasses.replace(cfg, instance_seed=cfg.instance_seed + HELDOUT_SEED_OFFSET)
+
+
+def large_config(cfg: MaifConfig) -> MaifConfig:
+    """A larger training set (100 maps x 10 formations, seed + 1,000,000): a policy trained on
+    the 10 fixed maps learns those maps; on many maps it learns the task."""
+    return dataclasses.replace(cfg, num_maps=LARGE_MAPS,
+                               instance_seed=cfg.instance_seed + LARGE_SEED_OFFSET)
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,8 @@ MAIF: ``maif-solo`` (1 robot, 12x12, fs 4), ``maif-tiny`` (4 robots, 12x12, fs 4
 Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100)),
 ``instance_order`` ("random" | "round_robin"), ``reward`` ("corrected" (default) | "reference"),
 ``instance_set`` ("train" (default): the 100 fixed instances | "heldout": 100 instances drawn
-with another generator seed, for evaluation on maps never trained on).
+with another generator seed, for evaluation on maps never trained on | "large": 1000 instances
+(100 maps) from a third seed, to train on many maps).
 
 RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``.
 Overrides: ``max_steps``, ``size`` ("tiny" | "small" | "medium" | "large"),
@@ -19,12 +20,12 @@ from typing import Any
 
 from .api import BatchedEnv
 from .maif import MaifEnv
-from .maif_instances import MAIF_CONFIGS, heldout_config, load_instances
+from .maif_instances import MAIF_CONFIGS, heldout_config, large_config, load_instances
 from .rware_env import RwareEnv
 from .single import SingleEnv
 
 MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order", "reward", "instance_set")
-INSTANCE_SETS = ("train", "heldout")
+INSTANCE_SETS = ("train", "heldout", "large")
 RWARE_OVERRIDES = ("max_steps", "size", "difficulty")
 RWARE_TASKS = {"rware-3": 3, "rware-6": 6, "rware-9": 9}
 
@@ -47,7 +48,8 @@ def make_env(name: str, num_envs: int = 1, seed: int = 0, **overrides: Any) -> B
         which = overrides.pop("instance_set", "train")
         if which not in INSTANCE_SETS:
             raise ValueError(f"instance_set must be one of {list(INSTANCE_SETS)}, got {which!r}")
-        cfg = MAIF_CONFIGS[name] if which == "train" else heldout_config(MAIF_CONFIGS[name])
+        cfg = MAIF_CONFIGS[name]
+        cfg = {"train": cfg, "heldout": heldout_config(cfg), "large": large_config(cfg)}[which]
         return MaifEnv(load_instances(cfg), num_envs=num_envs, seed=seed, name=name, **overrides)
     if name in RWARE_TASKS:
         _check_overrides(name, overrides, RWARE_OVERRIDES)

@@ -187,3 +187,26 @@ def test_reward_normalizer_scales_by_the_return_std() -> None:
     norm = RewardNormalizer(b, gamma=0.0)  # gamma 0: the "return" is the reward itself
     out = norm(r)
     np.testing.assert_allclose(out.rewards, rewards / rewards.std(), rtol=2e-3)
+
+
+def test_warm_start_copies_an_actor_across_team_sizes(tmp_path) -> None:
+    from sdhn_policy.weights import save_actor_file
+    from sdhn_train.config import ConfigError
+    from sdhn_train.warm_start import load_actor_into
+
+    torch.manual_seed(1)
+    solo = Actor(ActorSpec(obs_size=57, num_actions=5, features=MAIF_EGO))
+    path = tmp_path / "solo.safetensors"
+    save_actor_file(path, solo.export(4))
+    team = Actor(ActorSpec(obs_size=57, num_actions=5, features=MAIF_EGO))
+    assert load_actor_into(team, path) == 4
+    x = torch.from_numpy(maif_ego(maif_obs_sequence(3)))  # [T, 4, 114]
+    h0, resets = torch.zeros(4, 64), torch.zeros(3, 4, dtype=torch.bool)
+    with torch.no_grad():
+        torch.testing.assert_close(team.forward_sequence(x, h0, resets),
+                                   solo.forward_sequence(x, h0, resets))
+    other = Actor(ActorSpec(obs_size=57, num_actions=5, features="identity"))
+    with pytest.raises(ConfigError, match="differs"):
+        load_actor_into(other, path)
+    with pytest.raises(ConfigError, match="init_from"):
+        load_actor_into(team, tmp_path / "missing.safetensors")

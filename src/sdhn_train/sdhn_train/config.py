@@ -60,6 +60,8 @@ class ActorConfig:
                                     metadata={"help": "MLP encoder widths before the GRU"})
     gru_hidden: int = opt(64, "GRU hidden size")
     use_robot_id: bool = opt(False, "append a one-hot robot id to each local observation")
+    init_from: str | None = opt(None, "start from this exported actor (.safetensors), e.g. one "
+                                      "trained on maif-solo or a smaller team (warm start)")
 
 
 @dataclass

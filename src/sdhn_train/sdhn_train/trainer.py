@@ -31,6 +31,7 @@ from sdhn_train.normalize import RewardNormalizer
 from sdhn_train.ppo import NonFiniteLossError
 from sdhn_train.rollout import Rollout
 from sdhn_train.runner import RolloutCollector
+from sdhn_train.warm_start import load_actor_into
 
 EnvFactory = Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
 
@@ -102,6 +103,8 @@ class Trainer:
         self.eval_envs = make_eval_envs(cfg, env_factory)  # training set "" and held-out set
         self.eval_env = self.eval_envs.get("")
         self.learner = build_learner(cfg, EnvInfo.of(self.env), self.np_rng)
+        if cfg.actor.init_from:  # warm start (PPO learners: sdhn, mappo, dicg)
+            load_actor_into(self.learner.actor, cfg.actor.init_from)
         self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len,
                                           getattr(self.learner, "sample_actions", None))
         self.critic_h = self.learner.critic.initial_state(cfg.env.num_envs).numpy()

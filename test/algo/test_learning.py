@@ -1,10 +1,11 @@
 """Learning tests: trained policies complete MAIF formations (success and makespan, not return).
 
-One robot alone (maif-solo) and the four robots of maif-tiny, each run in a CI budget of a few
-minutes on one core, with the training defaults (egocentric features ``maif-ego/1``, the
-``corrected`` reward) and short training episodes. Greedy evaluation on the first EVAL instances
-of the training set and of the held-out set, at the task's 500-step limit. Thresholds and the
-measured values they come from are next to each test.
+Training defaults of issue 13: egocentric features (``maif-ego/1``), the ``corrected`` reward,
+training on many maps (``instance_set: large``), 100-step training episodes. One robot alone
+(maif-solo, MAPPO, 100k steps, ~20 s) learns to reach its goal; four robots (maif-tiny) start
+from that actor (warm start) and learn to complete the formation together. Greedy evaluation on
+the first EVAL instances of the fixed training set and of the held-out set, at the task's
+500-step limit. The measured values behind each threshold are written next to it.
 """
 
 from __future__ import annotations
@@ -21,25 +22,34 @@ from sdhn_train.config import Config
 from sdhn_train.trainer import Trainer
 
 EVAL = 50  # instances per set
+SOLO_STEPS = 100_000
+# maif-solo, MAPPO, seed 1, 100k steps: success 0.99 / 0.99 (training / held-out set), makespan
+# 16.6 / 16.8 against a lower bound of 16.0 (17 s on one core).
+SOLO_SUCCESS, SOLO_RATIO = 0.9, 1.15
+TINY_STEPS = 200_000
+# maif-tiny, warm start from the maif-solo actor, seed 1 (its zero-shot success is 0.32 / 0.28):
+# SDHN 0.52 / 0.46 at 100k steps, 0.74 / 0.52 at 150k (this test's EVAL), 0.84 / 0.75 at 200k;
+# MAPPO 0.64 / 0.54 at 150k; makespan 16.6-18.0 against 16.0. From scratch both stay at 0
+# success for the first ~250k steps (all robots learn to wait first).
+TINY_SUCCESS, TINY_RATIO = 0.55, 1.3
 
 
-def _cfg(env: str, algo: str, seed: int, steps: int, root: Path) -> Config:
+def _cfg(env: str, algo: str, steps: int, root: Path) -> Config:
     cfg = Config()
-    cfg.env.name, cfg.env.num_envs, cfg.env.max_steps = env, 16, 100
+    cfg.env.name, cfg.env.max_steps, cfg.env.instance_set = env, 100, "large"
     cfg.algo.name = algo
-    cfg.ppo.rollout_len, cfg.ppo.num_minibatches = 64, 2
-    cfg.train.seed, cfg.train.total_steps = seed, steps
+    cfg.train.seed, cfg.train.total_steps = 1, steps
     cfg.eval.interval, cfg.eval.instances = 1, EVAL  # > 0: build the evaluation envs
     cfg.log.tensorboard, cfg.log.progress, cfg.log.root = False, False, str(root)
     return cfg
 
 
-def train_and_evaluate(cfg: Config, run_dir: Path) -> dict[str, float]:
+def train(cfg: Config, run_dir: Path) -> Trainer:
     tr = Trainer(cfg, run_dir=run_dir)
     tr.run_dir.mkdir(parents=True)
     while tr.global_step < cfg.train.total_steps:
         tr.train_iteration()
-    return tr.evaluate()
+    return tr
 
 
 def bound(env: str) -> float:
@@ -58,24 +68,32 @@ def check(result: dict[str, float], env: str, min_success: float, max_ratio: flo
         assert success >= min_success, f"{infix or 'train '}success {success} < {min_success}"
         makespan = result[f"eval/{infix}makespan"]
         assert makespan <= max_ratio * lb, f"makespan {makespan} > {max_ratio} x {lb:.1f}"
+    assert np.isfinite(result["eval/episodic_return"])
+
+
+@pytest.fixture(scope="module")
+def solo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, float]]:
+    """A maif-solo MAPPO actor file and its evaluation."""
+    root = tmp_path_factory.mktemp("solo")
+    cfg = _cfg("maif-solo", "mappo", SOLO_STEPS, root)
+    cfg.env.num_envs, cfg.ppo.rollout_len, cfg.ppo.num_minibatches = 16, 64, 2
+    tr = train(cfg, root / "run")
+    from sdhn_policy.weights import save_actor_file
+
+    path = root / "solo_actor.safetensors"
+    save_actor_file(path, tr.learner.export_actor(1))
+    return path, tr.evaluate()
 
 
 @pytest.mark.learning
-def test_one_robot_reaches_its_goal(tmp_path: Path) -> None:
-    # measured: see SOLO_* below
-    cfg = _cfg("maif-solo", "mappo", 1, SOLO_STEPS, tmp_path)
-    check(train_and_evaluate(cfg, tmp_path / "solo"), "maif-solo", 0.95, 1.1)
+def test_one_robot_reaches_its_goal(solo: tuple[Path, dict[str, float]]) -> None:
+    check(solo[1], "maif-solo", SOLO_SUCCESS, SOLO_RATIO)
 
 
 @pytest.mark.learning
 @pytest.mark.parametrize("algo", ["sdhn", "mappo"])
-def test_four_robots_complete_maif_tiny(algo: str, tmp_path: Path) -> None:
-    cfg = _cfg("maif-tiny", algo, 1, TINY_STEPS, tmp_path)
-    result = train_and_evaluate(cfg, tmp_path / algo)
-    check(result, "maif-tiny", TINY_SUCCESS, 1.5)
-    assert np.isfinite(result["eval/episodic_return"])
-
-
-SOLO_STEPS = 100_000
-TINY_STEPS = 300_000
-TINY_SUCCESS = 0.5
+def test_four_robots_complete_maif_tiny(algo: str, solo: tuple[Path, dict[str, float]],
+                                        tmp_path: Path) -> None:
+    cfg = _cfg("maif-tiny", algo, TINY_STEPS, tmp_path)
+    cfg.actor.init_from = str(solo[0])
+    check(train(cfg, tmp_path / algo).evaluate(), "maif-tiny", TINY_SUCCESS, TINY_RATIO)

@@ -28,8 +28,8 @@ SOLO_STEPS = 100_000
 SOLO_SUCCESS, SOLO_RATIO = 0.9, 1.15
 TINY_STEPS = 200_000
 # maif-tiny, warm start from the maif-solo actor, seed 1 (its zero-shot success is 0.32 / 0.28):
-# SDHN 0.52 / 0.46 at 100k steps, 0.74 / 0.52 at 150k (this test's EVAL), 0.84 / 0.75 at 200k;
-# MAPPO 0.64 / 0.54 at 150k; makespan 16.6-18.0 against 16.0. From scratch both stay at 0
+# this test at 200k: SDHN 0.88 / 0.64 (97 s), MAPPO 0.82 / 0.62 (33 s), makespan 16.8-17.4
+# against 16.0; at 150k SDHN 0.74 / 0.52, MAPPO 0.64 / 0.54. From scratch both stay at 0
 # success for the first ~250k steps (all robots learn to wait first).
 TINY_SUCCESS, TINY_RATIO = 0.55, 1.3
 

@@ -97,6 +97,8 @@ class LoopMaif:
                 r += rw.collision
             if dist[i] < self.dist[i]:
                 r += rw.progress
+            elif dist[i] > self.dist[i]:
+                r += rw.progress_away
             ox, oy = self.pos[i][0] - mx, self.pos[i][1] - my
             d = abs(ox - self.goal_off[i][0]) + abs(oy - self.goal_off[i][1])
             r += (math.exp(-d) - 0.5) * rw.formation_scale

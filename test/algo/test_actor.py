@@ -14,6 +14,7 @@ from sdhn_policy import actor_runtime
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.actor_torch import Actor
 from sdhn_policy.weights import (
+    ACTOR_FORMAT,
     ActorSpec,
     ActorWeights,
     WeightsError,
@@ -101,7 +102,7 @@ def test_bytes_roundtrip_and_file_roundtrip(tmp_path: Path) -> None:
     save_actor_file(path, blob)
     assert load_actor_file(path) == blob
     side = json.loads(path.with_suffix(".json").read_text())
-    assert side["format"] == "sdhn-actor/1" and side["sha256"] == blob.sha256
+    assert side["format"] == ACTOR_FORMAT and side["sha256"] == blob.sha256
     assert not list(tmp_path.glob(".*tmp")), "temp files must not be left behind"
 
 
@@ -111,9 +112,9 @@ def _reencode(mutate) -> ActorWeights:  # type: ignore[no-untyped-def]
     mutate(tensors)
     from safetensors.numpy import save
 
-    meta = {"format": "sdhn-actor/1", "version": "3", "spec": json.dumps(spec.to_json())}
+    meta = {"format": ACTOR_FORMAT, "version": "3", "spec": json.dumps(spec.to_json())}
     payload = save(tensors, metadata=meta)
-    return ActorWeights("sdhn-actor/1", 3, payload, sha256_hex(payload))
+    return ActorWeights(ACTOR_FORMAT, 3, payload, sha256_hex(payload))
 
 
 @pytest.mark.parametrize(("make", "match"), [

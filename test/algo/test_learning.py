@@ -1,11 +1,11 @@
-"""Learning smoke test on maif-tiny: SDHN and MAPPO each learn a greedy policy far better than
-a random one within a CI budget.
+"""Learning tests: trained policies complete MAIF formations (success and makespan, not return).
 
-Measured (2 shared CPU cores, this file's settings, 64k team-steps per run, ~1-2 min per run):
-greedy success on maif-tiny stays 0 at this budget for both algorithms (a 0.8 success threshold
-is not reachable in CI minutes on 2 cores), while the greedy return rises from the random
-policy's ~-48 to about -10..-25. So the test asserts the measured improvement, not success:
-mean greedy return over 2 seeds >= random return + RETURN_MARGIN.
+Training defaults of issue 13: egocentric features (``maif-ego/1``), the ``corrected`` reward,
+training on many maps (``instance_set: large``), 100-step training episodes. One robot alone
+(maif-solo, MAPPO, 100k steps, ~20 s) learns to reach its goal; four robots (maif-tiny) start
+from that actor (warm start) and learn to complete the formation together. Greedy evaluation on
+the first EVAL instances of the fixed training set and of the held-out set, at the task's
+500-step limit. The measured values behind each threshold are written next to it.
 """
 
 from __future__ import annotations
@@ -16,53 +16,84 @@ import numpy as np
 import pytest
 
 from sdhn_sim.envs import make_env
+from sdhn_sim.envs.maif import MaifEnv
+from sdhn_sim.envs.maif_scripted import lower_bound
 from sdhn_train.config import Config
 from sdhn_train.trainer import Trainer
 
-STEPS = 65_536
-MAX_STEPS = 100  # short episodes: more episodes per CI minute
-RETURN_MARGIN = 15.0  # measured improvement is ~25-38 (see module docstring)
+EVAL = 50  # instances per set
+SOLO_STEPS = 100_000
+# maif-solo, MAPPO, seed 1, 100k steps: success 0.99 / 0.99 (training / held-out set), makespan
+# 16.6 / 16.8 against a lower bound of 16.0 (17 s on one core).
+SOLO_SUCCESS, SOLO_RATIO = 0.9, 1.15
+TINY_STEPS = 200_000
+# maif-tiny, warm start from the maif-solo actor, seed 1 (its zero-shot success is 0.32 / 0.28):
+# this test at 200k: SDHN 0.88 / 0.64 (97 s), MAPPO 0.82 / 0.62 (33 s), makespan 16.8-17.4
+# against 16.0; at 150k SDHN 0.74 / 0.52, MAPPO 0.64 / 0.54. From scratch both stay at 0
+# success for the first ~250k steps (all robots learn to wait first).
+TINY_SUCCESS, TINY_RATIO = 0.55, 1.3
 
 
-def _cfg(algo: str, seed: int, root: Path) -> Config:
+def _cfg(env: str, algo: str, steps: int, root: Path) -> Config:
     cfg = Config()
-    cfg.env.name, cfg.env.num_envs, cfg.env.max_steps = "maif-tiny", 16, MAX_STEPS
+    cfg.env.name, cfg.env.max_steps, cfg.env.instance_set = env, 100, "large"
     cfg.algo.name = algo
-    cfg.ppo.rollout_len, cfg.ppo.num_minibatches, cfg.ppo.reward_scale = 64, 2, 0.1
-    cfg.train.seed, cfg.train.total_steps = seed, STEPS
-    cfg.eval.interval, cfg.eval.episodes = 0, 16
+    cfg.train.seed, cfg.train.total_steps = 1, steps
+    cfg.eval.interval, cfg.eval.instances = 1, EVAL  # > 0: build the evaluation envs
     cfg.log.tensorboard, cfg.log.progress, cfg.log.root = False, False, str(root)
     return cfg
 
 
-def random_policy_return(episodes: int = 16, seed: int = 12345) -> float:
-    env = make_env("maif-tiny", num_envs=episodes, seed=seed, max_steps=MAX_STEPS)
-    env.reset(seed=seed)
-    rng = np.random.default_rng(0)
-    first: dict[int, float] = {}
-    while len(first) < episodes:
-        res = env.step(rng.integers(0, env.num_actions, (episodes, env.num_robots)))
-        for ep in res.episodes:
-            first.setdefault(ep.env_index, ep.episode_return)
-    return float(np.mean(list(first.values())))
+def train(cfg: Config, run_dir: Path) -> Trainer:
+    tr = Trainer(cfg, run_dir=run_dir)
+    tr.run_dir.mkdir(parents=True)
+    while tr.global_step < cfg.train.total_steps:
+        tr.train_iteration()
+    return tr
+
+
+def bound(env: str) -> float:
+    e = make_env(env, num_envs=EVAL, seed=0, instance_order="round_robin",
+                 instance_ids=list(range(EVAL)))
+    assert isinstance(e, MaifEnv)
+    e.reset(seed=0)
+    return lower_bound(e)
+
+
+def check(result: dict[str, float], env: str, min_success: float, max_ratio: float) -> None:
+    lb = bound(env)
+    print(f"{env}: {result} (lower bound {lb:.1f})")
+    for infix in ("", "heldout_"):
+        success = result[f"eval/{infix}success_rate"]
+        assert success >= min_success, f"{infix or 'train '}success {success} < {min_success}"
+        makespan = result[f"eval/{infix}makespan"]
+        assert makespan <= max_ratio * lb, f"makespan {makespan} > {max_ratio} x {lb:.1f}"
+    assert np.isfinite(result["eval/episodic_return"])
+
+
+@pytest.fixture(scope="module")
+def solo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, float]]:
+    """A maif-solo MAPPO actor file and its evaluation."""
+    root = tmp_path_factory.mktemp("solo")
+    cfg = _cfg("maif-solo", "mappo", SOLO_STEPS, root)
+    cfg.env.num_envs, cfg.ppo.rollout_len, cfg.ppo.num_minibatches = 16, 64, 2
+    tr = train(cfg, root / "run")
+    from sdhn_policy.weights import save_actor_file
+
+    path = root / "solo_actor.safetensors"
+    save_actor_file(path, tr.learner.export_actor(1))
+    return path, tr.evaluate()
+
+
+@pytest.mark.learning
+def test_one_robot_reaches_its_goal(solo: tuple[Path, dict[str, float]]) -> None:
+    check(solo[1], "maif-solo", SOLO_SUCCESS, SOLO_RATIO)
 
 
 @pytest.mark.learning
 @pytest.mark.parametrize("algo", ["sdhn", "mappo"])
-def test_learns_on_maif_tiny(algo: str, tmp_path: Path) -> None:
-    baseline = random_policy_return()
-    returns, successes = [], []
-    for seed in (1, 2):
-        tr = Trainer(_cfg(algo, seed, tmp_path), run_dir=tmp_path / f"{algo}{seed}")
-        tr.run_dir.mkdir(parents=True)
-        while tr.global_step < STEPS:
-            tr.train_iteration()
-        tr.eval_env = make_env("maif-tiny", num_envs=16, seed=12345, max_steps=MAX_STEPS)
-        result = tr.evaluate()
-        returns.append(result["eval/episodic_return"])
-        successes.append(result["eval/success_rate"])
-    mean_ret = float(np.mean(returns))
-    print(f"{algo}: greedy return {returns} (random {baseline:.1f}), success {successes}")
-    assert mean_ret >= baseline + RETURN_MARGIN, (
-        f"{algo} greedy return {returns} (mean {mean_ret:.1f}) is not {RETURN_MARGIN} above "
-        f"the random policy's {baseline:.1f}")
+def test_four_robots_complete_maif_tiny(algo: str, solo: tuple[Path, dict[str, float]],
+                                        tmp_path: Path) -> None:
+    cfg = _cfg("maif-tiny", algo, TINY_STEPS, tmp_path)
+    cfg.actor.init_from = str(solo[0])
+    check(train(cfg, tmp_path / algo).evaluate(), "maif-tiny", TINY_SUCCESS, TINY_RATIO)

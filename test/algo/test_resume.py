@@ -19,8 +19,9 @@ def short_episodes(name: str, num_envs: int, seed: int, **kw: object) -> Batched
     return make_env(name, num_envs=num_envs, seed=seed, max_steps=12)
 
 
-def _cfg(algo: str, root: Path) -> Config:
+def _cfg(algo: str, root: Path, normalize_rewards: bool = False) -> Config:
     cfg = Config()
+    cfg.ppo.normalize_rewards = normalize_rewards
     cfg.env.name, cfg.env.num_envs = "maif-tiny", 4
     cfg.algo.name = algo
     cfg.ppo.rollout_len, cfg.ppo.num_minibatches, cfg.ppo.epochs = 16, 2, 2
@@ -36,9 +37,10 @@ def _params(t: Trainer) -> dict[str, np.ndarray]:
     return {k: v.copy() for k, v in t.learner.state_dict()[0].items()}
 
 
-@pytest.mark.parametrize("algo", ALGO_NAMES)
-def test_resume_gives_identical_parameters_and_next_rollout(algo: str, tmp_path: Path) -> None:
-    a = Trainer(_cfg(algo, tmp_path), short_episodes, run_dir=tmp_path / "a")
+@pytest.mark.parametrize(("algo", "norm"), [*((a, False) for a in ALGO_NAMES), ("sdhn", True)])
+def test_resume_gives_identical_parameters_and_next_rollout(algo: str, norm: bool,
+                                                            tmp_path: Path) -> None:
+    a = Trainer(_cfg(algo, tmp_path, norm), short_episodes, run_dir=tmp_path / "a")
     a.run_dir.mkdir(parents=True)
     for _ in range(3):
         a.train_iteration()
@@ -49,7 +51,7 @@ def test_resume_gives_identical_parameters_and_next_rollout(algo: str, tmp_path:
     want_rollout, _ = a.collector.collect(a.critic_h)
     assert want_rollout.truncated.any(), "the test must cross episode ends"
 
-    b = Trainer(_cfg(algo, tmp_path), short_episodes, run_dir=tmp_path / "b")
+    b = Trainer(_cfg(algo, tmp_path, norm), short_episodes, run_dir=tmp_path / "b")
     b.load_checkpoint(path)
     assert b.global_step == 3 * 4 * 16
     b.train_iteration()

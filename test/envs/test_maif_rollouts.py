@@ -103,7 +103,7 @@ def test_matches_per_robot_loop_reference():
     env = make_env("maif-tiny", num_envs=2, seed=4, max_steps=500)
     assert isinstance(env, MaifEnv)
     env.reset()
-    refs = [loop_cls(env.world(e)) for e in range(2)]
+    refs = [loop_cls(env.world(e), rewards=env.rewards) for e in range(2)]
     rng = np.random.default_rng(7)
     n = env.num_robots
     collisions = 0
@@ -122,7 +122,7 @@ def test_matches_per_robot_loop_reference():
             np.testing.assert_array_equal(env.robot_collisions[e], coll, err_msg=ctx)
             collisions += sum(coll)
             if res.terminated[e] or res.truncated[e]:
-                refs[e] = loop_cls(env.world(e))
+                refs[e] = loop_cls(env.world(e), rewards=env.rewards)
     assert collisions > 20, "the rollout should exercise conflicts"
 
 

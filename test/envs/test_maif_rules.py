@@ -110,18 +110,21 @@ def formation_term(pos, goals):
     return (np.exp(-d) - 0.5) * 0.001
 
 
-def test_each_reward_term():
+@pytest.mark.parametrize(("reward", "on_goal", "away"), [("reference", 1.0, 0.0),
+                                                         ("corrected", 0.0, -0.1)])
+def test_each_reward_term(reward, on_goal, away):
     # robot 0: moves closer to its goal (move + progress)
-    # robot 1: stays off goal; robot 2: stays on goal
+    # robot 1: stays off goal; robot 2: stays on goal (reference +1, corrected 0)
     # robot 3: moves into an obstacle (move + collision, no progress)
-    # robot 4: moves away from its goal (move only)
+    # robot 4: moves away from its goal (move; corrected also -0.1)
     starts = [(1, 1), (5, 1), (6, 6), (3, 4), (0, 7)]
     goals = [(3, 1), (5, 3), (6, 6), (3, 6), (0, 6)]
-    env = scenario(starts, goals, obstacles=[(3, 5)])
+    env = scenario(starts, goals, obstacles=[(3, 5)], reward=reward)
+    assert env.reward_name == reward
     res, pos, coll = step(env, [RIGHT, STAY, STAY, DOWN, RIGHT])
     assert pos == [[2, 1], [5, 1], [6, 6], [3, 4], [1, 7]]
     assert coll == [False, False, False, True, False]
-    base = np.array([-0.075 + 0.1, -0.075, 1.0, -0.075 - 0.5, -0.075])
+    base = np.array([-0.075 + 0.1, -0.075, on_goal, -0.075 - 0.5, -0.075 + away])
     want = base + formation_term(pos, goals)
     np.testing.assert_allclose(env.robot_rewards[0], want, rtol=0, atol=1e-6)
     assert math.isclose(float(res.reward[0]), want.sum(), abs_tol=1e-5)
@@ -131,7 +134,7 @@ def test_each_reward_term():
 def test_all_on_goal_bonus_and_episode_stats():
     starts = [(1, 1), (2, 2), (4, 4)]
     goals = [(1, 2), (2, 2), (4, 3)]
-    env = scenario(starts, goals)
+    env = scenario(starts, goals, reward="reference")
     res = env.step(np.array([[DOWN, STAY, UP]]))
     assert res.terminated[0] and not res.truncated[0]
     want = np.array([-0.075 + 0.1, 1.0, -0.075 + 0.1]) + 3.0 + formation_term(goals, goals)

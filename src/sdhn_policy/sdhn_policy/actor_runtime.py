@@ -8,7 +8,9 @@ This module runs inside every actor process and must never import torch. It comp
     action, log_prob, h = rt.act(obs[None], h, greedy=False, rng=rng, robot_id=i)
 
 Shapes: ``obs`` [X, D] (X = any batch of robots), ``hidden`` [X, H]; ``robot_id`` an int or [X]
-ints, required when the actor was trained with a one-hot robot id.
+ints, required when the actor was trained with a one-hot robot id. ``obs`` is the raw observation
+the environment sends: the runtime applies the spec's feature transform (``sdhn_policy.features``)
+itself, so callers never need to know which features the actor was trained on.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import os
 import numpy as np
 import numpy.typing as npt
 
+from sdhn_policy.features import get_transform
 from sdhn_policy.weights import (
     ActorSpec,
     ActorWeights,
@@ -44,6 +47,7 @@ class ActorRuntime:
     def __init__(self, spec: ActorSpec, tensors: Tensors, version: int = 0) -> None:
         self.spec = spec
         self.version = version
+        self._features = get_transform(spec.features)
         self._enc = [
             (tensors[f"encoder.{k}.weight"].T.copy(), tensors[f"encoder.{k}.bias"])
             for k in range(len(spec.hidden_sizes))
@@ -81,6 +85,7 @@ class ActorRuntime:
         x = np.asarray(obs, dtype=np.float32)
         if x.ndim != 2 or x.shape[1] != self.spec.obs_size:
             raise ValueError(f"obs must be [X, {self.spec.obs_size}], got {x.shape}")
+        x = self._features(x)
         if not self.spec.use_robot_id:
             return x
         if robot_id is None:

@@ -31,8 +31,15 @@ import numpy.typing as npt
 from safetensors.numpy import load as st_load
 from safetensors.numpy import save as st_save
 
-ACTOR_FORMAT = "sdhn-actor/1"
-"""Format string of the actor blob; bump the number on any incompatible change."""
+from sdhn_policy.features import check_transform, feature_size
+
+ACTOR_FORMAT = "sdhn-actor/2"
+"""Format string of the actor blob; bump the number on any incompatible change.
+``sdhn-actor/2`` adds the spec's ``features`` (the input transform of the raw observation)."""
+RETIRED_FORMATS = {
+    "sdhn-actor/1": "it predates input features (it was trained on absolute coordinates); "
+                    "retrain, or export again with this version",
+}
 
 Tensors = dict[str, npt.NDArray[np.float32]]
 
@@ -82,16 +89,21 @@ class IncompatibleWeightsError(WeightsError):
 class ActorSpec:
     """Shape of the shared actor network (everything needed to rebuild it)."""
 
-    obs_size: int  # D: length of one robot's local observation
+    obs_size: int  # D: length of one robot's raw local observation (what the env sends)
     num_actions: int  # A: size of the categorical policy
     hidden_sizes: tuple[int, ...] = (64,)  # MLP encoder widths (ReLU after each layer)
     gru_hidden: int = 64  # GRU hidden size
     use_robot_id: bool = False  # append a one-hot robot id of length num_robots to the obs
     num_robots: int = 0  # N (only used for the one-hot id)
+    features: str = "identity"  # sdhn_policy.features transform applied to the raw observation
+
+    @property
+    def feature_size(self) -> int:
+        return feature_size(self.features, self.obs_size)
 
     @property
     def input_size(self) -> int:
-        return self.obs_size + (self.num_robots if self.use_robot_id else 0)
+        return self.feature_size + (self.num_robots if self.use_robot_id else 0)
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -108,6 +120,7 @@ class ActorSpec:
                 gru_hidden=int(d["gru_hidden"]),
                 use_robot_id=bool(d["use_robot_id"]),
                 num_robots=int(d["num_robots"]),
+                features=str(d["features"]),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise WeightsError(f"actor spec metadata is malformed: {e!r}") from e
@@ -121,6 +134,10 @@ class ActorSpec:
             raise WeightsError(f"actor spec has a non-positive hidden width: {self}")
         if self.use_robot_id and self.num_robots < 1:
             raise WeightsError("actor spec uses a robot id but num_robots < 1")
+        try:
+            check_transform(self.features, self.obs_size)
+        except ValueError as e:
+            raise WeightsError(f"actor spec: {e}") from e
 
     def tensor_shapes(self) -> dict[str, tuple[int, ...]]:
         """The exact tensor names and shapes of an actor with this spec."""
@@ -224,6 +241,9 @@ def _read_metadata(payload: bytes) -> dict[str, str]:
 
 def decode_actor(fmt: str, version: int, payload: bytes, sha256: str) -> tuple[ActorSpec, Tensors]:
     """Validate the bytes form and return (spec, tensors). Raises WeightsError on any mismatch."""
+    if fmt in RETIRED_FORMATS:
+        raise UnknownFormatError(f"weights format {fmt!r} is no longer accepted: "
+                                 f"{RETIRED_FORMATS[fmt]} (this runtime reads {ACTOR_FORMAT!r})")
     if fmt != ACTOR_FORMAT:
         raise UnknownFormatError(
             f"unknown weights format {fmt!r}; this runtime reads {ACTOR_FORMAT!r}")

@@ -20,7 +20,9 @@ from typing import Any, TypeVar
 
 import yaml
 
+from sdhn_policy.features import TRANSFORMS
 from sdhn_sim import overrides
+from sdhn_sim.envs.maif import MAIF_REWARDS
 from sdhn_sim.envs.registry import env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS
 from sdhn_train.learners.ppo import PPOConfig
@@ -125,10 +127,15 @@ def validate(cfg: Config) -> None:
     envs = env_names()
     need(cfg.env.name in envs, "env.name", ", ".join(envs), cfg.env.name)
     need(cfg.algo.name in ALGO_NAMES, "algo.name", ", ".join(ALGO_NAMES), cfg.algo.name)
+    need(cfg.env.reward in MAIF_REWARDS, "env.reward", ", ".join(MAIF_REWARDS), cfg.env.reward)
+    features = ("auto", *TRANSFORMS)
+    need(cfg.env.features in features, "env.features", ", ".join(features), cfg.env.features)
+    need(cfg.env.instance_set in ("train", "large"), "env.instance_set", "train, large",
+         cfg.env.instance_set)
     positive = {
         "env.num_envs": cfg.env.num_envs, "train.total_steps": cfg.train.total_steps,
         "train.threads": cfg.train.threads, "actor.gru_hidden": cfg.actor.gru_hidden,
-        "eval.episodes": cfg.eval.episodes,
+        "eval.episodes": cfg.eval.episodes, "eval.instances": cfg.eval.instances,
     }
     for path, v in positive.items():
         need(v >= 1, path, "an integer >= 1", v)

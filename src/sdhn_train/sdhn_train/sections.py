@@ -43,6 +43,13 @@ class EnvConfig:
     name: str = opt("maif-10", "environment, a name of sdhn_sim.envs.env_names()")
     num_envs: int = opt(32, "B: environments stepped together in one process")
     max_steps: int | None = opt(None, "episode step limit; null = the environment's (500 MAIF)")
+    reward: str = opt("corrected", "MAIF reward, a name of sdhn_sim.envs.maif.MAIF_REWARDS "
+                                   "(corrected, reference; ignored by RWARE)")
+    instance_set: str = opt("train", "MAIF training instances: train (the 100 fixed), large "
+                                     "(1000 from another seed); evaluation always uses train "
+                                     "and heldout")
+    features: str = opt("auto", "actor/critic input features: auto (maif-ego/1 for MAIF, "
+                                "identity otherwise) or a name of sdhn_policy.features.TRANSFORMS")
 
 
 @dataclass
@@ -58,6 +65,8 @@ class ActorConfig:
                                     metadata={"help": "MLP encoder widths before the GRU"})
     gru_hidden: int = opt(64, "GRU hidden size")
     use_robot_id: bool = opt(False, "append a one-hot robot id to each local observation")
+    init_from: str | None = opt(None, "start from this exported actor (.safetensors), e.g. one "
+                                      "trained on maif-solo or a smaller team (warm start)")
 
 
 @dataclass
@@ -71,7 +80,9 @@ class TrainConfig:
 @dataclass
 class EvalConfig:
     interval: int = opt(50_000, "team env-steps between greedy evaluations (0 = never)")
-    episodes: int = opt(16, "fixed evaluation instances (one episode each)")
+    episodes: int = opt(16, "RWARE: evaluation episodes (one per env, from eval.seed)")
+    instances: int = opt(100, "MAIF: instances 0..k-1 of the training and of the held-out set, "
+                              "one greedy episode each")
     seed: int = opt(12345, "seed of the fixed evaluation instances")
 
 

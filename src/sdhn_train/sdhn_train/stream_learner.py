@@ -28,6 +28,7 @@ from sdhn_policy.weights import ActorWeights, save_actor_file
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import get_algorithm
 from sdhn_train.config import Config
+from sdhn_train.env_features import featurize_assembled
 from sdhn_train.envinfo import EnvInfo
 from sdhn_train.learners.base import Learner
 from sdhn_train.runs import seed_everything
@@ -93,6 +94,7 @@ class StreamLearner:
     # -- one update -------------------------------------------------------------------------
 
     def train(self, a: AssembledRollout, max_hypergraphs: int = 0) -> UpdateResult:
+        a = featurize_assembled(a, self.info.features)  # messages carry raw observations
         actor_h, critic_h0 = self.learner.hidden_after(a.prefix_obs, a.prefix_state)
         r = a.rollout
         r.actor_h0, r.critic_h0 = actor_h[None], critic_h0

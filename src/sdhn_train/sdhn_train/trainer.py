@@ -23,12 +23,16 @@ from sdhn_policy.weights import save_actor_file
 from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import get_algorithm
-from sdhn_train.collector import RolloutCollector, evaluate_greedy
+from sdhn_train.collector import RolloutCollector
 from sdhn_train.config import Config
+from sdhn_train.env_features import make_training_env, unwrap
 from sdhn_train.envinfo import EnvInfo
+from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs, reward_name
 from sdhn_train.learners.base import Learner, NonFiniteLossError
+from sdhn_train.normalize import RewardNormalizer
 from sdhn_train.rollout import Rollout
 from sdhn_train.runs import MetricsLog, episode_metrics, save_ph_snapshot, seed_everything
+from sdhn_train.warm_start import load_actor_into
 
 EnvFactory = Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
 
@@ -44,15 +48,18 @@ class Trainer:
                  run_dir: Path | None = None) -> None:
         self.cfg = cfg
         self.np_rng = seed_everything(cfg.train.seed, cfg.train.deterministic, cfg.train.threads)
-        overrides = {} if cfg.env.max_steps is None else {"max_steps": cfg.env.max_steps}
-        self.env = env_factory(cfg.env.name, cfg.env.num_envs, cfg.train.seed, **overrides)
-        self.eval_env = (env_factory(cfg.env.name, cfg.eval.episodes, cfg.eval.seed, **overrides)
-                         if cfg.eval.interval > 0 else None)
+        self.env = make_training_env(cfg, env_factory, cfg.env.num_envs, cfg.train.seed)
+        self.eval_envs = make_eval_envs(cfg, env_factory)  # training set "" and held-out set
+        self.eval_env = self.eval_envs.get("")
         self.learner: Learner = get_algorithm(cfg.algo.name).build_learner(
             cfg, EnvInfo.of(self.env), self.np_rng)
+        if cfg.actor.init_from:  # warm start from an exported actor
+            load_actor_into(self.learner.actor, cfg.actor.init_from)
         self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len,
                                           self.learner.sample_actions)
         self.critic_h = self.learner.initial_critic_hidden(cfg.env.num_envs)
+        self.reward_norm = (RewardNormalizer(cfg.env.num_envs, cfg.ppo.gamma)
+                            if cfg.ppo.normalize_rewards else None)
         self.global_step = 0
         self.last_checkpoint: Path | None = None
         self.last_rollout: Rollout | None = None  # for P_H snapshots (sdhn_train.analysis)
@@ -64,12 +71,14 @@ class Trainer:
 
     def save_checkpoint(self) -> Path:
         arrays, meta = ckpt.learner_state(self.learner)
-        env_arrays, env_values = ckpt.env_snapshot(self.env)
+        env_arrays, env_values = ckpt.env_snapshot(unwrap(self.env))
         arrays.update({f"env.{k}": v for k, v in env_arrays.items()})
         arrays["collector.obs"] = self.collector.obs
         arrays["collector.state"] = self.collector.state
         arrays["collector.actor_h"] = self.collector.actor_h
         arrays["collector.critic_h"] = self.critic_h
+        if self.reward_norm is not None:
+            arrays.update({f"reward_norm.{k}": v for k, v in self.reward_norm.state().items()})
         meta.update(global_step=self.global_step, config=self.cfg.to_dict(),
                     env_values=env_values)
         path = ckpt.checkpoint_path(self.run_dir, self.global_step)
@@ -80,12 +89,16 @@ class Trainer:
     def load_checkpoint(self, path: Path) -> None:
         arrays, meta = ckpt.load_checkpoint(path)
         ckpt.restore_learner_state(self.learner, arrays, meta)
-        ckpt.env_restore(self.env, {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
+        ckpt.env_restore(unwrap(self.env),
+                         {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
                          meta["env_values"])
         self.collector.obs = arrays["collector.obs"].copy()
         self.collector.state = arrays["collector.state"].copy()
         self.collector.actor_h = arrays["collector.actor_h"].copy()
         self.critic_h = arrays["collector.critic_h"].copy()
+        if self.reward_norm is not None:
+            self.reward_norm.load_state({k[12:]: v for k, v in arrays.items()
+                                         if k.startswith("reward_norm.")})
         self.global_step = int(meta["global_step"])
         self.last_checkpoint = path
 
@@ -102,13 +115,15 @@ class Trainer:
 
     def evaluate(self) -> dict[str, float]:
         assert self.eval_env is not None
-        episodes = evaluate_greedy(self.eval_env, self.learner.actor, self.cfg.eval.seed)
-        return episode_metrics("eval", episodes)
+        self.eval_envs[""] = self.eval_env
+        return evaluate_sets(self.eval_envs, self.learner.actor, self.cfg.eval.seed)
 
     def train_iteration(self) -> tuple[dict[str, float], list[EpisodeStats]]:
         """One rollout + one PPO update (the unit that checkpoints and resume line up on)."""
         rollout, episodes = self.collector.collect(self.critic_h)
         self.last_rollout = rollout
+        if self.reward_norm is not None:
+            rollout = self.reward_norm(rollout)
         t0 = time.perf_counter()
         metrics = self.learner.update(rollout)
         self.collector.timings.update += time.perf_counter() - t0
@@ -137,7 +152,9 @@ class Trainer:
                 metrics["charts/steps_per_second"] = sps
                 metrics.update(episode_metrics("charts", episodes))
                 if self.eval_env is not None and self.global_step >= next_eval:
-                    metrics.update(self.evaluate())
+                    metrics.update(evaluated := self.evaluate())
+                    print(f"step {self.global_step}: {headline(evaluated)} "
+                          f"({reward_name(self.env)} reward)", file=out)
                     self.write_ph_snapshot()
                     next_eval = _next_multiple(self.global_step, cfg.eval.interval)
                 log.write(self.global_step, metrics)
@@ -163,8 +180,8 @@ class Trainer:
         log.close()
         blob = self.learner.export_actor(version=self.learner.num_updates)
         save_actor_file(self.run_dir / "actor.safetensors", blob)
-        summary = {"global_step": self.global_step, "run_dir": str(self.run_dir),
-                   "actor": str(self.run_dir / "actor.safetensors"), **final,
+        summary = {**final, "reward": reward_name(self.env), "global_step": self.global_step,
+                   "run_dir": str(self.run_dir), "actor": str(self.run_dir / "actor.safetensors"),
                    "timings": asdict(self.collector.timings)}
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
         print(json.dumps(summary), file=out)

@@ -50,6 +50,7 @@ from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, apply_dict, load_yaml, validate
 from sdhn_train.config import ConfigError as TrainConfigError
+from sdhn_train.env_features import resolve_features, wrap_features
 from sdhn_train.envinfo import EnvInfo
 from sdhn_train.learners.base import NonFiniteLossError
 from sdhn_train.runs import MetricsLog, episode_metrics
@@ -148,7 +149,8 @@ def open_learner(p: TrainerParams, cfg: Config) -> tuple[StreamLearner, BatchedE
         raise ConfigError(f"run_dir: {run_dir} holds checkpoints of an earlier run; "
                           "allowed: resume:=true, or an empty or new run_dir")
     env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
-    learner = StreamLearner(cfg, EnvInfo.of(env), run_dir)
+    learner_env = wrap_features(env, resolve_features(cfg))  # the learner sees features
+    learner = StreamLearner(cfg, EnvInfo.of(learner_env), run_dir)
     try:
         resumed = learner.resume_latest() if p.resume else None
     except (ckpt.CheckpointError, KeyError, ValueError, RuntimeError) as e:
@@ -167,7 +169,8 @@ class TrainerNode(Node):
         check_params(p)
         cfg = build_config(p.env, p.algo, p.seed, p.rollout_steps, p.config)
         self.learner, env, resumed = open_learner(p, cfg)
-        self.run_dir, self.info = self.learner.run_dir, self.learner.info
+        self.run_dir = self.learner.run_dir
+        self.info = EnvInfo.of(env)  # raw sizes, as the messages carry them
         self.ns = p.team_ns
         n = self.info.num_robots
         self.assembler = TransitionAssembler(n, self.info.obs_size, self.info.state_size,

@@ -9,7 +9,7 @@ grids indexed ``[y, x]``; MAIF action ``up`` = y - 1, ``down`` = y + 1, ``left``
 """
 
 from .api import BatchedEnv, EpisodeStats, StepResult
-from .maif import MaifEnv, MaifRewards, MaifWorld
+from .maif import MAIF_REWARDS, MaifEnv, MaifRewards, MaifWorld
 from .maif_instances import MAIF_CONFIGS, MaifConfig, MaifInstances, load_instances
 from .registry import env_names, make_env, make_single_env
 from .render import render_grid, robot_colors
@@ -18,6 +18,7 @@ from .single import SingleEnv, SingleStep
 
 __all__ = [
     "MAIF_CONFIGS",
+    "MAIF_REWARDS",
     "BatchedEnv",
     "EpisodeStats",
     "MaifConfig",

@@ -36,15 +36,29 @@ ACTION_DELTAS = np.array([[0, 0], [0, -1], [0, 1], [-1, 0], [1, 0]], dtype=np.in
 
 @dataclass(frozen=True)
 class MaifRewards:
-    """Reward terms of the spec (per robot; the team reward is their sum)."""
+    """Reward terms of the spec (per robot; the team reward is their sum). The defaults are the
+    ``reference`` terms (the benchmark's); see ``MAIF_REWARDS`` for the named sets."""
 
     move: float = -0.075
     stay_off_goal: float = -0.075
     stay_on_goal: float = 1.0
     collision: float = -0.5
-    progress: float = 0.1
+    progress: float = 0.1  # the L1 distance to the own goal shrank this step
     formation_scale: float = 0.001
     completion: float = 3.0
+    progress_away: float = 0.0  # the L1 distance grew this step (corrected: -0.1)
+    name: str = "reference"
+
+
+# ``reference``: the benchmark's terms (oscillating earns more than waiting; standing on one's
+# goal pays +1 per step, so completing ends an income). ``corrected`` (the training default):
+# potential-based progress (+0.1 closer, -0.1 farther) and no stay-on-goal income. See the spec
+# /work/shared/spec/maif.md and docs/maif_rewards.md.
+MAIF_REWARDS: dict[str, MaifRewards] = {
+    "reference": MaifRewards(),
+    "corrected": MaifRewards(stay_on_goal=0.0, progress_away=-0.1, name="corrected"),
+}
+DEFAULT_REWARD = "corrected"
 
 
 @dataclass(frozen=True)
@@ -101,6 +115,8 @@ class MaifEnv:
 
     ``config`` is a configuration name, a ``MaifConfig`` (its instance set is loaded or
     generated) or a ready ``MaifInstances`` (e.g. a hand-built scenario in a test).
+    ``reward`` names the reward terms (``MAIF_REWARDS``: "corrected", the default, or
+    "reference"); ``rewards`` gives custom terms instead. ``reward_name`` says which is used.
 
     Env ``b`` of a batch seeded ``s`` behaves exactly like a single environment seeded ``s + b``
     (each draws its instances with its own generator) in ``"random"`` order. In ``"round_robin"``
@@ -122,6 +138,7 @@ class MaifEnv:
         instance_order: str = "random",
         rewards: MaifRewards | None = None,
         name: str | None = None,
+        reward: str = DEFAULT_REWARD,
     ) -> None:
         inst = config if isinstance(config, MaifInstances) else load_instances(config)
         cfg = inst.config
@@ -147,6 +164,8 @@ class MaifEnv:
                 f"got {instance_ids!r}"
             )
         ids = ids.astype(np.int64)
+        if rewards is None and reward not in MAIF_REWARDS:
+            raise ValueError(f"reward must be one of {list(MAIF_REWARDS)}, got {reward!r}")
         self.name = name or cfg.name
         self.config = cfg
         self.instances = inst
@@ -183,7 +202,8 @@ class MaifEnv:
         self._goy = np.zeros((b, n), dtype=np.float64)
         self._idx_buf = np.empty((b, n, WINDOW * WINDOW), dtype=np.int64)
         self._win_buf = np.empty((b, n, WINDOW * WINDOW), dtype=np.int8)
-        self.rewards = rw = rewards or MaifRewards()
+        self.rewards = rw = rewards or MAIF_REWARDS[reward]
+        self.reward_name = rw.name
         # base reward by (stay, stay-on-goal): index = stay + (stay & on_goal)
         self._base_reward = np.array([rw.move, rw.stay_off_goal, rw.stay_on_goal])
         self._goal_feat = np.zeros((b, n, 4), dtype=np.float32)
@@ -316,6 +336,8 @@ class MaifEnv:
         r = self._base_reward[np.add(stay, stay & on_goal, dtype=np.intp)]
         r += rw.collision * coll
         r += rw.progress * (dist < self._dist)
+        if rw.progress_away:
+            r += rw.progress_away * (dist > self._dist)
         inv_n = 1.0 / n
         ex = x - (x.sum(axis=1) * inv_n)[:, None] - self._gox
         ey = y - (y.sum(axis=1) * inv_n)[:, None] - self._goy
@@ -394,6 +416,11 @@ class MaifEnv:
     def instance_id(self) -> IntArray:
         """[B] instance id each env is playing."""
         return self._instance.copy()
+
+    @property
+    def step_count(self) -> IntArray:
+        """[B] steps taken in each env's current episode (the scripted planner's clock)."""
+        return self._t.copy()
 
     def render_rgb(self, b: int = 0, cell_px: int = 8) -> npt.NDArray[np.uint8]:
         return self.world(b).render_rgb(cell_px)

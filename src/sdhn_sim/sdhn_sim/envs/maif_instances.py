@@ -12,6 +12,7 @@ Sets for the shipped configurations live in ``sdhn_sim/data/<name>.npz`` (writte
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,6 +56,7 @@ def _cfg(name: str, n: int, size: int, fs: int, seed: int) -> MaifConfig:
 MAIF_CONFIGS: dict[str, MaifConfig] = {
     c.name: c
     for c in (
+        _cfg("maif-solo", 1, 12, 4, 1001),  # one robot alone on a maif-tiny-sized map (tests)
         _cfg("maif-tiny", 4, 12, 4, 1004),
         _cfg("maif-10", 10, 32, 7, 1010),
         _cfg("maif-16", 16, 48, 9, 1016),
@@ -64,6 +66,24 @@ MAIF_CONFIGS: dict[str, MaifConfig] = {
     )
 }
 SHIPPED = ("maif-tiny", "maif-10", "maif-16", "maif-20")
+HELDOUT_SEED_OFFSET = 500_000
+"""Held-out instances of a configuration: the same generator with ``instance_seed`` + this."""
+
+
+LARGE_SEED_OFFSET = 1_000_000
+LARGE_MAPS = 100
+
+
+def heldout_config(cfg: MaifConfig) -> MaifConfig:
+    """The configuration of ``cfg``'s held-out instance set (maps a policy never trained on)."""
+    return dataclasses.replace(cfg, instance_seed=cfg.instance_seed + HELDOUT_SEED_OFFSET)
+
+
+def large_config(cfg: MaifConfig) -> MaifConfig:
+    """A larger training set (100 maps x 10 formations, seed + 1,000,000): a policy trained on
+    the 10 fixed maps learns those maps; on many maps it learns the task."""
+    return dataclasses.replace(cfg, num_maps=LARGE_MAPS,
+                               instance_seed=cfg.instance_seed + LARGE_SEED_OFFSET)
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,13 @@
 """Named environments: ``make_env(name, num_envs, seed, **overrides) -> BatchedEnv``.
 
-MAIF: ``maif-tiny`` (4 robots, 12x12, fs 4), ``maif-10`` (32, fs 7), ``maif-16`` (48, fs 9),
+MAIF: ``maif-solo`` (1 robot, 12x12, fs 4), ``maif-tiny`` (4 robots, 12x12, fs 4),
+``maif-10`` (32, fs 7), ``maif-16`` (48, fs 9),
 ``maif-20`` (64, fs 11), ``maif-30`` (80, fs 13), ``maif-40`` (96, fs 15).
 Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100)),
-``instance_order`` ("random" | "round_robin").
+``instance_order`` ("random" | "round_robin"), ``reward`` ("corrected" (default) | "reference"),
+``instance_set`` ("train" (default): the 100 fixed instances | "heldout": 100 instances drawn
+with another generator seed, for evaluation on maps never trained on | "large": 1000 instances
+(100 maps) from a third seed, to train on many maps).
 
 RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``.
 Overrides: ``max_steps``, ``size`` ("tiny" | "small" | "medium" | "large"),
@@ -16,11 +20,12 @@ from typing import Any
 
 from .api import BatchedEnv
 from .maif import MaifEnv
-from .maif_instances import MAIF_CONFIGS
+from .maif_instances import MAIF_CONFIGS, heldout_config, large_config, load_instances
 from .rware_env import RwareEnv
 from .single import SingleEnv
 
-MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order")
+MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order", "reward", "instance_set")
+INSTANCE_SETS = ("train", "heldout", "large")
 RWARE_OVERRIDES = ("max_steps", "size", "difficulty")
 RWARE_TASKS = {"rware-3": 3, "rware-6": 6, "rware-9": 9}
 
@@ -40,7 +45,12 @@ def make_env(name: str, num_envs: int = 1, seed: int = 0, **overrides: Any) -> B
     """A batched environment by name (see ``env_names()``)."""
     if name in MAIF_CONFIGS:
         _check_overrides(name, overrides, MAIF_OVERRIDES)
-        return MaifEnv(MAIF_CONFIGS[name], num_envs=num_envs, seed=seed, name=name, **overrides)
+        which = overrides.pop("instance_set", "train")
+        if which not in INSTANCE_SETS:
+            raise ValueError(f"instance_set must be one of {list(INSTANCE_SETS)}, got {which!r}")
+        cfg = MAIF_CONFIGS[name]
+        cfg = {"train": cfg, "heldout": heldout_config(cfg), "large": large_config(cfg)}[which]
+        return MaifEnv(load_instances(cfg), num_envs=num_envs, seed=seed, name=name, **overrides)
     if name in RWARE_TASKS:
         _check_overrides(name, overrides, RWARE_OVERRIDES)
         return RwareEnv(RWARE_TASKS[name], num_envs=num_envs, seed=seed, name=name, **overrides)

@@ -55,6 +55,8 @@ class PPOConfig:
     target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
                                          "null = algorithm default (sdhn 0.01, mappo 1 = none)")
     reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
+    normalize_rewards: bool = opt(False, "divide rewards by the running std of the discounted "
+                                         "return (in-process trainer; logging unscaled)")
 
     def validate(self) -> None:
         need_positive("ppo", {"rollout_len": self.rollout_len, "epochs": self.epochs,

@@ -1,0 +1,36 @@
+"""Warm start (``actor.init_from``): begin training from an exported actor, e.g. one trained on a
+smaller team. MAIF's observation (57 floats) and its features do not depend on the team size, so
+an actor trained alone on maif-solo or on maif-tiny runs unchanged on maif-10/16/20; the critic,
+whose input does depend on N, starts fresh.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import torch
+
+from sdhn_policy.actor_torch import Actor
+from sdhn_policy.weights import WeightsError, decode_weights, load_actor_file
+from sdhn_train.config import ConfigError
+
+
+def load_actor_into(actor: Actor, path: str | os.PathLike[str]) -> int:
+    """Copy the weights of the actor file at ``path`` into ``actor``; returns their version.
+    ConfigError when the file cannot be read or its network differs from ``actor``'s."""
+    try:
+        blob = load_actor_file(path)
+        spec, tensors = decode_weights(blob)
+    except WeightsError as e:
+        raise ConfigError(f"actor.init_from = {str(path)!r}: {e.reason}") from e
+    mine = actor.spec
+    if not mine.use_robot_id:  # the team size only matters to a one-hot robot id
+        spec = dataclasses.replace(spec, num_robots=mine.num_robots)
+    if spec != mine:
+        raise ConfigError(f"actor.init_from = {str(path)!r}: its actor {spec} differs from the "
+                          f"one configured here {mine}")
+    with torch.no_grad():
+        for name, t in actor.tensors().items():
+            t.copy_(torch.from_numpy(tensors[name]))
+    return blob.version

@@ -1,0 +1,153 @@
+#!/usr/bin/env python3
+"""Ship a trained MAIF actor under models/: the weights pair plus a card with what it achieves.
+
+    .venv/bin/python scripts/ship_model.py RUN_DIR models/maif-10-sdhn [--instances 100]
+
+Evaluates the run's exported ``actor.safetensors`` exactly as it deploys (the torch-free NumPy
+runtime, greedy, one episode per instance) on the training and the held-out instance sets, next to
+the scripted baselines, and writes ``actor.safetensors`` + ``actor.json`` + ``card.md`` +
+``card.json`` into the model directory (replacing what was there). Success rate and makespan
+(NC when nothing completed) come first; return second, under the reward named.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_sim.envs import make_env
+from sdhn_sim.envs.api import EpisodeStats
+from sdhn_sim.envs.maif import MaifEnv
+from sdhn_sim.envs.maif_scripted import GreedyPolicy, PlannerPolicy, lower_bound, run_episodes
+
+SETS = ("train", "heldout")
+
+
+def run_actor(rt: ActorRuntime, env: MaifEnv, seed: int) -> list[EpisodeStats]:
+    """One greedy episode per env of the batch (env b plays instance b), NumPy runtime only."""
+    b, n = env.num_envs, env.num_robots
+    obs, _ = env.reset(seed=seed)
+    h = rt.initial_state(b * n)
+    ids = np.tile(np.arange(n), b)
+    rng = np.random.default_rng(seed)
+    first: dict[int, EpisodeStats] = {}
+    while len(first) < b:
+        act, _, h = rt.act(obs.reshape(b * n, -1), h, greedy=True, rng=rng,
+                           robot_id=ids if rt.spec.use_robot_id else None)
+        res = env.step(act.reshape(b, n))
+        for ep in res.episodes:
+            first.setdefault(ep.env_index, ep)
+            h[ep.env_index * n:(ep.env_index + 1) * n] = 0.0  # a new episode starts there
+        obs = res.obs
+    return [first[i] for i in range(b)]
+
+
+def summarise(eps: list[EpisodeStats]) -> dict[str, object]:
+    done = [e.makespan for e in eps if e.makespan is not None]
+    return {"success_rate": float(np.mean([e.success for e in eps])),
+            "makespan": round(float(np.mean(done)), 2) if done else "NC",
+            "return": round(float(np.mean([e.episode_return for e in eps])), 2),
+            "collisions": round(float(np.mean([e.collisions for e in eps])), 2)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("run_dir", type=Path, help="a training run directory holding actor.safetensors")
+    p.add_argument("out", type=Path, help="model directory to write, e.g. models/maif-10-sdhn")
+    p.add_argument("--instances", type=int, default=100, help="instances 0..k-1 of each set")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--note", default="", help="one paragraph for the card (how it was trained)")
+    args = p.parse_args(argv)
+    actor = args.run_dir / "actor.safetensors"
+    cfg_file = args.run_dir / "config.yaml"
+    if not actor.is_file() or not cfg_file.is_file():
+        print(f"ship_model: {args.run_dir} has no actor.safetensors/config.yaml", file=sys.stderr)
+        return 2
+    cfg = yaml.safe_load(cfg_file.read_text())
+    env_name, reward = cfg["env"]["name"], cfg["env"].get("reward", "corrected")
+    summary_file = args.run_dir / "summary.json"
+    summary = json.loads(summary_file.read_text()) if summary_file.is_file() else {}
+    rt = ActorRuntime.from_file(actor)
+    k = args.instances
+    results: dict[str, dict[str, object]] = {}
+    for which in SETS:
+        def env(which: str = which) -> MaifEnv:
+            e = make_env(env_name, num_envs=k, seed=args.seed, instance_order="round_robin",
+                         instance_ids=list(range(k)), instance_set=which, reward=reward)
+            assert isinstance(e, MaifEnv)
+            return e
+        results[f"policy/{which}"] = summarise(run_actor(rt, env(), args.seed))
+        for name, pol in (("greedy", GreedyPolicy(args.seed)),
+                          ("planner", PlannerPolicy(args.seed))):
+            results[f"{name}/{which}"] = summarise(run_episodes(env(), pol, seed=args.seed))
+        fresh = env()
+        fresh.reset(seed=args.seed)  # the instances' start positions, for the bound
+        results[f"lower_bound/{which}"] = {"makespan": round(lower_bound(fresh), 2)}
+        print(f"[ship] {which}: policy {results[f'policy/{which}']}", flush=True)
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    for suffix in (".safetensors", ".json"):
+        shutil.copyfile(actor.with_suffix(suffix), args.out / f"actor{suffix}")
+    card = {"env": env_name, "algo": cfg["algo"]["name"], "reward": reward,
+            "features": rt.spec.features, "seed": cfg["train"]["seed"],
+            "team_steps": summary.get("global_step"),
+            "instance_set": cfg["env"].get("instance_set"),
+            "warm_start": cfg.get("actor", {}).get("init_from"), "weights_sha256": rt_sha(actor),
+            "evaluation": {"instances_per_set": k, "seed": args.seed, **results}}
+    (args.out / "card.json").write_text(json.dumps(card, indent=2) + "\n")
+    (args.out / "card.md").write_text(card_markdown(card, args.note))
+    print(f"[ship] wrote {args.out}/ (actor.safetensors, actor.json, card.md, card.json)")
+    return 0
+
+
+def rt_sha(actor: Path) -> str:
+    return str(json.loads(actor.with_suffix(".json").read_text()).get("sha256", ""))
+
+
+def card_markdown(card: dict[str, object], note: str) -> str:
+    ev = card["evaluation"]
+    assert isinstance(ev, dict)
+    rows = []
+    for who in ("policy", "greedy", "planner"):
+        cells = []
+        for which in SETS:
+            r = ev[f"{who}/{which}"]
+            cells.append(f"{r['success_rate']:.2f} | {r['makespan']}")
+        label = {"policy": f"**this policy** ({card['algo']})",
+                 "greedy": "scripted greedy (decentralised)",
+                 "planner": "scripted planner (centralised)"}[who]
+        rows.append(f"| {label} | {' | '.join(cells)} |")
+    lb = " | ".join(f"— | {ev[f'lower_bound/{w}']['makespan']}" for w in SETS)
+    returns = ", ".join(f"{w} {ev[f'policy/{w}']['return']}" for w in SETS)
+    return f"""# {card['env']} · {card['algo']} · seed {card['seed']}
+
+Greedy evaluation with the NumPy runtime that the actor nodes run, one episode per instance
+({ev['instances_per_set']} training and {ev['instances_per_set']} held-out instances, 500-step
+limit), written by `scripts/ship_model.py`.
+
+| who | training success | training makespan | held-out success | held-out makespan |
+|---|---|---|---|---|
+{chr(10).join(rows)}
+| lower bound (longest shortest path) | {lb} |
+
+Makespan is the mean over completed episodes (NC: none completed). Return of this policy under
+the `{card['reward']}` reward: {returns}.
+
+- environment `{card['env']}`, reward `{card['reward']}`, input features `{card['features']}`
+- trained for {card['team_steps']} team env-steps, seed {card['seed']}, training instances
+  `{card['instance_set']}`, warm start: `{card['warm_start'] or 'none'}`
+- weights sha256 `{card['weights_sha256']}`
+
+{note}
+"""
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,42 +1,43 @@
 #!/usr/bin/env bash
 # Set up (idempotent), then a short demo of the whole ROS stack on maif-10 with 10 robots, one
 # actor process per robot, everything started by the launcher (scripts/launch.sh):
-#   1. train a short while over ROS: simulator + 10 actor processes (sampling) + trainer node,
+#   1. deploy the shipped SDHN policy (models/maif-10-sdhn): simulator + 10 actor processes +
+#      MCAP recorder, a few episodes of completed formations (success and makespan per episode),
+#   2. train a short while over ROS: simulator + 10 actor processes (sampling) + trainer node,
 #      which pushes new weights versions to the actors as it learns,
-#   2. deploy the trained weights: simulator + 10 actor processes + MCAP recorder, a few episodes,
-#   3. print the MCAP path and a plot of the run (per-episode return and makespan).
-# Knobs: TRAIN_EPISODES (default 4), EPISODES (default 3), TRAIN=inprocess (train with the
-# in-process trainer instead of the trainer node), ROS_DOMAIN_ID.
+#   3. print the MCAP path and a plot of the runs (per-episode makespan and return).
+# Knobs: EPISODES (default 3), TRAIN_EPISODES (default 2), MODEL (default models/maif-10-sdhn),
+# TRAIN=inprocess (train with the in-process trainer instead of the trainer node), ROS_DOMAIN_ID.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 "$ROOT/scripts/setup.sh"
 cd "$ROOT"
-TRAIN_EPISODES="${TRAIN_EPISODES:-4}"
+TRAIN_EPISODES="${TRAIN_EPISODES:-2}"
 EPISODES="${EPISODES:-3}"
+MODEL="${MODEL:-$ROOT/models/maif-10-sdhn}"
 RUN_DIR="$ROOT/runs/demo-$(date +%Y%m%d-%H%M%S)"
 mkdir -p "$RUN_DIR"
 export ROS_LOG_DIR="$RUN_DIR/ros_logs" ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $$ % 100 + 1 ))}"
 
+echo "[demo] 1/3 deploying the shipped policy $MODEL on maif-10 (greedy):" \
+     "simulator + 10 actor processes + recorder, $EPISODES episodes"
+sed -n '/^| who/,/^| lower/p' "$MODEL/card.md"
+scripts/launch.sh configs/launch/deploy-maif10.yaml --set weights="$MODEL" \
+  --set run_dir="$RUN_DIR/deploy" --set episodes="$EPISODES" --set status_interval=5
+
 if [ "${TRAIN:-ros}" = inprocess ]; then
-  echo "[demo] 1/3 training SDHN on maif-10 in-process ($((TRAIN_EPISODES * 4096)) team steps)"
+  echo "[demo] 2/3 training SDHN on maif-10 in-process ($((TRAIN_EPISODES * 4096)) team steps)"
   .venv/bin/python -m sdhn_train.cli --env maif-10 --algo sdhn --seed 1 \
     --total-steps $((TRAIN_EPISODES * 4096)) --no-progress --set log.root="$RUN_DIR" \
     --run-name train --set eval.interval=0 --set log.tensorboard=false \
     >"$RUN_DIR/train.log" 2>&1 || { cat "$RUN_DIR/train.log"; exit 1; }
-  WEIGHTS="$RUN_DIR/train"
 else
-  echo "[demo] 1/3 training SDHN on maif-10 over ROS for $TRAIN_EPISODES episodes:" \
-       "simulator + 10 actor processes + trainer node"
+  echo "[demo] 2/3 training SDHN on maif-10 over ROS for $TRAIN_EPISODES episodes:" \
+       "simulator + 10 actor processes + trainer node (from scratch; long runs: README)"
   scripts/launch.sh configs/launch/train-maif10.yaml --set run_dir="$RUN_DIR/train" \
     --set episodes="$TRAIN_EPISODES" --set recorder=false --set status_interval=5
-  WEIGHTS="$RUN_DIR/train/trainer"
 fi
-echo "[demo]     trained weights: $WEIGHTS/actor.safetensors"
-
-echo "[demo] 2/3 deploying on maif-10: simulator + 10 actor processes + recorder, $EPISODES episodes"
-scripts/launch.sh configs/launch/deploy-maif10.yaml --set weights="$WEIGHTS" \
-  --set run_dir="$RUN_DIR/deploy" --set episodes="$EPISODES" --set status_interval=5
 
 echo "[demo] 3/3 results"
 PLOT=$(.venv/bin/python -m sdhn_sim.launch.plot "$RUN_DIR/deploy" --train-run "$RUN_DIR/train")

@@ -126,7 +126,8 @@ class SimNode(Node):
                     f"all {self.sim.num_robots} actors matched after {now - self.t_start:.2f}s; "
                     "starting episode 0")
                 self.t_start = self.t_last_log = now
-                self.events.write("started", robots=self.sim.num_robots)
+                self.events.write("started", robots=self.sim.num_robots,
+                                  reward=str(getattr(self.sim.env.env, "reward_name", "env")))
                 self.publish(self.sim.reset())
             elif now - self.t_start > self.cfg.start_timeout:
                 self.get_logger().error(

@@ -15,7 +15,11 @@ state with terminated/truncated set); nobody needs to answer it.
 
 Transitions leave in (episode, step) order. A record that is still incomplete when ``settle_lag``
 newer records have appeared (a robot's action never came: the simulator made it 'stay'; the
-trainer started mid-step) is dropped and counted; the stream then has a *gap*: the transition
+trainer started mid-step) is dropped and counted; so is a step of which nothing ever arrived,
+once a later step of the same episode is finished. Every step the simulator made after the
+trainer's first is thus a transition, a counted step drop (``INCOMPLETE_STEP``,
+``STEP_NEVER_SEEN``), a terminal step, or still pending (``flush`` settles those at the end).
+The stream then has a *gap*: the transition
 before it is marked truncated (the learner bootstraps from the value of the state after it, as
 for a step limit) and the next segment starts with a hidden-state reset. The actors' real GRU
 state is not zero there, so the first few re-computed log-probs after a gap differ from the
@@ -60,6 +64,7 @@ DUPLICATE_STATE = "duplicate state"
 ACTION_RANGE = "action out of range"
 BAD_LOG_PROB = "log_prob not finite or > 0"
 INCOMPLETE_STEP = "incomplete step (missing obs, action or state)"
+STEP_NEVER_SEEN = "step never seen (none of its messages arrived)"
 
 
 @dataclass
@@ -154,6 +159,7 @@ class TransitionAssembler:
         self._segment_obs: list[npt.NDArray[np.float32]] = []  # this episode's steps so far
         self._segment_state: list[npt.NDArray[np.float32]] = []
         self._ready: list[AssembledRollout] = []
+        self._flushing = False
 
     # -- input ------------------------------------------------------------------------------
 
@@ -226,6 +232,15 @@ class TransitionAssembler:
         self._segment_obs, self._segment_state = [], []
         self.stats.gaps += 1
 
+    def flush(self) -> None:
+        """The stream ended (the trainer stops): settle every pending record now, so each step
+        is a transition or a counted drop, none left uncounted."""
+        self._flushing = True
+        try:
+            self._advance()
+        finally:
+            self._flushing = False
+
     # -- output -----------------------------------------------------------------------------
 
     def pop_rollout(self) -> AssembledRollout | None:
@@ -258,7 +273,7 @@ class TransitionAssembler:
 
     def _settled(self, rec: _Record) -> bool:
         """No more messages are expected for this record: ``settle_lag`` newer ones exist."""
-        return self._counter - rec.created >= self.settle_lag
+        return self._flushing or self._counter - rec.created >= self.settle_lag
 
     def _advance(self) -> None:
         """Emit every transition that is ready, in key order; drop records that never complete."""
@@ -291,7 +306,15 @@ class TransitionAssembler:
             if not self._buffer:
                 self._segment_obs, self._segment_state = [], []
 
+    def _count_unseen(self, key: Key) -> None:
+        """Steps of this episode between the cursor and ``key`` that no message ever reached."""
+        cur = self._cursor
+        if cur is not None and key[0] == cur[0] and key[1] > cur[1]:
+            d = self.stats.dropped
+            d[STEP_NEVER_SEEN] = d.get(STEP_NEVER_SEEN, 0) + key[1] - cur[1]
+
     def _finish(self, key: Key, gap: bool, episode_end: bool) -> None:
+        self._count_unseen(key)
         del self._records[key]
         self._cursor = (key[0], key[1] + 1)
         if gap:
@@ -311,6 +334,7 @@ class TransitionAssembler:
             float(nxt.team_reward), bool(nxt.terminated),
             bool(nxt.truncated and not nxt.terminated), nxt.obs.copy(), nxt.state.copy()))
         self._last = self._buffer[-1]
+        self._count_unseen(key)
         del self._records[key]
         self._cursor = (key[0], key[1] + 1)
         self.stats.transitions += 1

@@ -22,7 +22,7 @@ from sdhn_train.learner_process import (
 )
 from sdhn_train.transitions import TransitionAssembler
 
-from .test_transitions import N, Msg, feed, script
+from .test_transitions import Msg, N, feed, script
 
 
 def test_frames_carry_arrays_of_every_dtype_and_no_pickle() -> None:

@@ -13,6 +13,7 @@ both before step 0, never starts a step this actor cannot answer. The decision l
 
 from __future__ import annotations
 
+import time
 from collections import Counter
 from collections.abc import Sequence
 
@@ -62,6 +63,7 @@ class ActorNode(Node):
         except WeightsError as e:
             raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {WEIGHTS_ALLOWED}") from e
         self.robot_id = robot_id
+        self._action = RobotAction(robot_id=robot_id)
         self.drops: Counter[str] = Counter()
         self.obs_sub: Subscription | None = None
         self.action_pub: Publisher | None = None
@@ -98,13 +100,16 @@ class ActorNode(Node):
 
     def on_obs(self, msg: RobotObservation) -> None:
         obs = np.frombuffer(msg.obs, dtype=np.float32)
-        out = self.core.on_obs(int(msg.episode), int(msg.step), int(msg.robot_id),
-                               int(msg.num_robots), obs, done=msg.terminated or msg.truncated)
+        out = self.core.on_obs(msg.episode, msg.step, msg.robot_id, msg.num_robots, obs,
+                               done=msg.terminated or msg.truncated)
         if isinstance(out, Decision):
             assert self.action_pub is not None
-            a = RobotAction()
-            a.header.stamp = self.get_clock().now().to_msg()
-            a.episode, a.step, a.robot_id = msg.episode, msg.step, self.robot_id
+            # One message, refilled per step (rclpy serialises at publish): no per-step message,
+            # Header and Time objects. The stamp is the wall clock the node's ROS clock reads
+            # (no simulated time in this graph), without building rclpy Time objects.
+            a = self._action
+            a.header.stamp.sec, a.header.stamp.nanosec = divmod(time.time_ns(), 1_000_000_000)
+            a.episode, a.step = msg.episode, msg.step
             a.action, a.log_prob, a.policy_version = out.action, out.log_prob, out.version
             self.action_pub.publish(a)
         elif isinstance(out, Drop):

@@ -89,6 +89,11 @@ class SimNode(Node):
             self.create_subscription(RobotAction, topics.robot_action(i),
                                      functools.partial(self.on_action, i), STEP)
             for i in range(n)]
+        self._obs_msgs = [RobotObservation(robot_id=i, num_robots=n) for i in range(n)]
+        for m in self._obs_msgs:
+            m.header.frame_id = "map"
+        self._state_msg = TeamState(env_name=cfg.env, num_robots=n)
+        self._state_msg.header.frame_id = "map"
         self.drops: Counter[str] = Counter()
         self.started = False
         # Until every robot has answered the first step, a missed deadline re-sends that step to
@@ -202,13 +207,11 @@ class SimNode(Node):
 
     def publish(self, f: Frame) -> None:
         stamp = self.get_clock().now().to_msg()
-        n = self.sim.num_robots
         for i, pub in enumerate(self.obs_pubs):
             pub.publish(self.observation(f, i, stamp))
-        s = TeamState()
+        s = self._state_msg
         s.header.stamp = stamp
-        s.header.frame_id = "map"
-        s.env_name, s.episode, s.step, s.num_robots = self.cfg.env, f.episode, f.step, n
+        s.episode, s.step = f.episode, f.step
         s.state = array.array("f", np.ascontiguousarray(f.state, dtype=np.float32).tobytes())
         s.positions = array.array("i", f.positions.astype(np.int32).tobytes())
         s.team_reward, s.terminated, s.truncated = float(f.reward), f.terminated, f.truncated
@@ -219,10 +222,11 @@ class SimNode(Node):
                          else time.monotonic() + self.cfg.step_deadline)
 
     def observation(self, f: Frame, i: int, stamp: Time) -> RobotObservation:
-        m = RobotObservation()
+        """Robot i's observation of frame f, in robot i's one message object, refilled per step
+        (rclpy serialises at publish): no per-step message, Header and Time objects."""
+        m = self._obs_msgs[i]
         m.header.stamp = stamp
-        m.header.frame_id = "map"
-        m.episode, m.step, m.robot_id, m.num_robots = f.episode, f.step, i, self.sim.num_robots
+        m.episode, m.step = f.episode, f.step
         m.obs = array.array("f", np.ascontiguousarray(f.obs[i], dtype=np.float32).tobytes())
         m.reward, m.terminated, m.truncated = float(f.reward), f.terminated, f.truncated
         return m

@@ -186,7 +186,7 @@ def recovery(states: list[Any], t_kill: float) -> tuple[float | None, int]:
 
 def recorded(run: Path) -> tuple[list[Any], list[int], int]:
     """(TeamState messages, weights versions, episodes) from the run's recording."""
-    from sdhn_sim.recording import read_recording
+    from sdhn_sim.recording.reader import read_recording
 
     rec = read_recording(run / "recording.mcap")
     states = [m for _, m in rec.decoded("/state")]

@@ -105,3 +105,22 @@ def test_status_files_feed_the_launchers_status_line(tmp_path: Path,
     parts = node_status_parts(statuses)
     assert parts == ["trainer v3 120 transitions (96 learned)",
                      f"trainer dropped {tr.INCOMPLETE_STEP}: 2"]
+
+
+def test_a_step_the_sim_took_with_a_stay_is_dropped_at_once_even_if_the_action_comes_late() -> None:
+    lengths = [12]
+    msgs = script(lengths)
+    late = next(m for m in msgs if m.kind == "action" and m.step == 7 and m.robot == 1)
+    msgs.remove(late)
+    asm = TransitionAssembler(N, 5, N * 5, 5, rollout_steps=4, max_steps=40, settle_lag=1000)
+    cut = next(i for i, m in enumerate(msgs) if m.kind == "state" and m.step == 8)
+    feed(asm, msgs[:cut], lengths)
+    # the state of step 8 says one robot took 'stay' in step 7
+    assert asm.add_state(0, 8, np.full(N * 5, 8, np.float32), num_robots=N, team_reward=8.0,
+                         terminated=False, truncated=False, missed=1) is None
+    assert asm.stats.dropped == {tr.MISSED_ACTION: 1}, "dropped without waiting to settle"
+    # the late answer is not what the world executed: refused (the node counts it as stale)
+    assert feed(asm, [late], lengths) == [tr.STALE_STEP]
+    feed(asm, msgs[cut + 1:], lengths)
+    assert asm.stats.transitions == 11 and asm.pending_records == 0
+    assert asm.stats.dropped == {tr.MISSED_ACTION: 1}

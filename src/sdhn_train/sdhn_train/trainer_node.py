@@ -272,7 +272,7 @@ class TrainerNode(Node):
         state = _floats(m.state)
         reason = self.assembler.add_state(m.episode, m.step, state, num_robots=m.num_robots,
                                           team_reward=m.team_reward, terminated=m.terminated,
-                                          truncated=m.truncated)
+                                          truncated=m.truncated, missed=m.missed_actions)
         self._drop(reason, topics.absolute(self.ns, topics.STATE),
                    f"episode {m.episode} step {m.step} "
                    f"len {state.size}")

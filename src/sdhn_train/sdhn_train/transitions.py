@@ -17,8 +17,10 @@ Transitions leave in (episode, step) order. A record that is still incomplete wh
 newer records have appeared (a robot's action never came: the simulator made it 'stay'; the
 trainer started mid-step) is dropped and counted; so is a step of which nothing ever arrived,
 once a later step of the same episode is finished. Every step the simulator made after the
-trainer's first is thus a transition, a counted step drop (``INCOMPLETE_STEP``,
-``STEP_NEVER_SEEN``), a terminal step, or still pending (``flush`` settles those at the end).
+trainer's first is thus a transition, a counted step drop (``MISSED_ACTION``,
+``INCOMPLETE_STEP``, ``STEP_NEVER_SEEN``), a terminal step, or still pending (``flush``
+settles those at the end). A step the simulator took with a robot's 'stay' (its TeamState's
+``missed_actions`` says so) is dropped at once as ``MISSED_ACTION``, never learned from.
 The stream then has a *gap*: the transition
 before it is marked truncated (the learner bootstraps from the value of the state after it, as
 for a step limit) and the next segment starts with a hidden-state reset. The actors' real GRU
@@ -65,6 +67,7 @@ ACTION_RANGE = "action out of range"
 BAD_LOG_PROB = "log_prob not finite or > 0"
 INCOMPLETE_STEP = "incomplete step (missing obs, action or state)"
 STEP_NEVER_SEEN = "step never seen (none of its messages arrived)"
+MISSED_ACTION = "step with a missed action (the simulator made a robot 'stay')"
 
 
 @dataclass
@@ -82,6 +85,7 @@ class _Record:
     team_reward: float = 0.0
     terminated: bool = False
     truncated: bool = False
+    missed: bool = False  # the simulator stepped without a robot's action: never complete
 
     @property
     def observed(self) -> bool:
@@ -207,7 +211,10 @@ class TransitionAssembler:
 
     def add_state(self, episode: int, step: int, state: npt.NDArray[np.float32], *,
                   num_robots: int, team_reward: float, terminated: bool,
-                  truncated: bool) -> str | None:
+                  truncated: bool, missed: int = 0) -> str | None:
+        """``missed``: the state's ``missed_actions``, robots the simulator made 'stay' in the
+        step before; that step can never be complete, and is dropped as soon as this is known
+        (``MISSED_ACTION``) instead of after ``settle_lag`` more records."""
         if num_robots != self.n:
             return WRONG_TEAM_SIZE
         if state.shape != (self.s,):
@@ -221,6 +228,10 @@ class TransitionAssembler:
             return DUPLICATE_STATE
         rec.state = state
         rec.team_reward, rec.terminated, rec.truncated = team_reward, terminated, truncated
+        if missed > 0 and step > 0:
+            before, _ = self._record((episode, step - 1))
+            if before is not None:
+                before.missed = True
         self._advance()
         return None
 
@@ -287,11 +298,14 @@ class TransitionAssembler:
                 self._finish(key, gap=False, episode_end=True)
                 continue
             nxt = self._records.get((episode, step + 1))
-            if rec.complete and nxt is not None and nxt.observed:
+            # A step the simulator took with a 'stay' for a missing robot is never learned from,
+            # even if that robot's late action reaches us: it is not what the world executed.
+            if not rec.missed and rec.complete and nxt is not None and nxt.observed:
                 self._emit(key, rec, nxt)
                 continue
-            if self._settled(rec):
-                self.stats.dropped[INCOMPLETE_STEP] = self.stats.dropped.get(INCOMPLETE_STEP, 0) + 1
+            if rec.missed or self._settled(rec):
+                cause = MISSED_ACTION if rec.missed else INCOMPLETE_STEP
+                self.stats.dropped[cause] = self.stats.dropped.get(cause, 0) + 1
                 self._finish(key, gap=True, episode_end=False)
                 continue
             break

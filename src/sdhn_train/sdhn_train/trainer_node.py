@@ -49,7 +49,7 @@ from sdhn_msgs.msg import (
 )
 from sdhn_sim.envs.registry import env_names, make_env
 from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP, STEP_DEPTH
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.ros.status import write_status
 from sdhn_train import checkpoint as ckpt
@@ -186,7 +186,10 @@ class TrainerNode(Node):
         self.assembler = TransitionAssembler(n, self.info.obs_size, self.info.state_size,
                                              self.info.num_actions,
                                              rollout_steps=cfg.ppo.rollout_len,
-                                             max_steps=env.max_steps)
+                                             max_steps=env.max_steps,
+                                             # a message later than the queue depth is lost
+                                             # anyway; steps the sim 'stay'ed drop at once
+                                             settle_lag=STEP_DEPTH)
         self.dropped: dict[str, int] = {}  # message- and rollout-level drops seen by the node
         self.learner_dropped: dict[str, int] = {}  # reported by the learner process
         self._logged_causes: set[str] = set()

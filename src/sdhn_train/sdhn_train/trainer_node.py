@@ -52,6 +52,7 @@ from sdhn_sim.ros import topics
 from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP, STEP_DEPTH
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.ros.status import write_status
+from sdhn_train import cdr
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, apply_dict, load_yaml, validate
@@ -70,6 +71,7 @@ from sdhn_train.transitions import TransitionAssembler
 QUEUE_ROLLOUTS = 4  # rollouts waiting to be written to the learner's pipe (never seen > 1)
 STATUS_PERIOD_S = 2.0
 LAG_PERIOD_S = 0.1
+UNDECODABLE = "undecodable CDR"
 
 
 @dataclass(frozen=True)
@@ -208,15 +210,16 @@ class TrainerNode(Node):
         self.learner = start_learner(p, cfg, self.run_dir)
         self.version = self.learner.start_weights.version
         self.transitions_learned = self.learner.start_transitions
+        self._obs_topics = [topics.absolute(self.ns, topics.robot_obs(i)) for i in range(n)]
+        self._action_topics = [topics.absolute(self.ns, topics.robot_action(i))
+                               for i in range(n)]
         for i in range(n):
-            self.create_subscription(RobotObservation,
-                                     topics.absolute(self.ns, topics.robot_obs(i)),
-                                     functools.partial(self.on_obs, i), STEP)
-            self.create_subscription(RobotAction,
-                                     topics.absolute(self.ns, topics.robot_action(i)),
-                                     functools.partial(self.on_action, i), STEP)
+            self.create_subscription(RobotObservation, self._obs_topics[i],
+                                     functools.partial(self.on_obs, i), STEP, raw=True)
+            self.create_subscription(RobotAction, self._action_topics[i],
+                                     functools.partial(self.on_action, i), STEP, raw=True)
         self.create_subscription(TeamState, topics.absolute(self.ns, topics.STATE), self.on_state,
-                                 STEP)
+                                 STEP, raw=True)
         self.create_subscription(EpisodeSummary, topics.absolute(self.ns, topics.EPISODE),
                                  self.on_episode, STEP)
         self.create_timer(LAG_PERIOD_S, self.on_lag_timer)
@@ -248,37 +251,57 @@ class TrainerNode(Node):
         if kind is not None:
             self._count(kind, f"on {topic}: {detail}")
 
-    def on_obs(self, robot: int, m: RobotObservation) -> None:
-        topic = topics.absolute(self.ns, topics.robot_obs(robot))
-        if m.robot_id != robot:
-            self._drop("robot id differs from the topic's robot", topic, f"robot_id={m.robot_id}")
+    # The step topics arrive as raw CDR (``raw=True``) and are read by ``sdhn_train.cdr``: no
+    # Python message objects per message (41 a step at N = 20), which kept the node behind the
+    # loop under load.
+
+    def on_obs(self, robot: int, data: bytes) -> None:
+        try:
+            m = cdr.read_observation(data)
+        except cdr.CdrError as e:
+            self._drop(UNDECODABLE, self._obs_topics[robot], str(e))
             return
-        obs = _floats(m.obs)
-        reason = self.assembler.add_obs(m.episode, m.step, m.robot_id, obs,
+        if m.robot_id != robot:
+            self._drop("robot id differs from the topic's robot", self._obs_topics[robot],
+                       f"robot_id={m.robot_id}")
+            return
+        reason = self.assembler.add_obs(m.episode, m.step, m.robot_id, m.obs,
                                         num_robots=m.num_robots, terminated=m.terminated,
                                         truncated=m.truncated)
-        self._drop(reason, topic, f"episode {m.episode} step {m.step} len {obs.size}")
+        if reason is not None:
+            self._drop(reason, self._obs_topics[robot],
+                       f"episode {m.episode} step {m.step} len {m.obs.size}")
         self._queue_ready()
 
-    def on_action(self, robot: int, m: RobotAction) -> None:
-        topic = topics.absolute(self.ns, topics.robot_action(robot))
+    def on_action(self, robot: int, data: bytes) -> None:
+        try:
+            m = cdr.read_action(data)
+        except cdr.CdrError as e:
+            self._drop(UNDECODABLE, self._action_topics[robot], str(e))
+            return
         if m.robot_id != robot:
-            self._drop("robot id differs from the topic's robot", topic, f"robot_id={m.robot_id}")
+            self._drop("robot id differs from the topic's robot", self._action_topics[robot],
+                       f"robot_id={m.robot_id}")
             return
         reason = self.assembler.add_action(m.episode, m.step, m.robot_id, m.action,
                                            log_prob=m.log_prob, version=m.policy_version)
-        self._drop(reason, topic, f"episode {m.episode} step {m.step} action {m.action} "
-                   f"log_prob {m.log_prob}")
+        if reason is not None:
+            self._drop(reason, self._action_topics[robot], f"episode {m.episode} step "
+                       f"{m.step} action {m.action} log_prob {m.log_prob}")
         self._queue_ready()
 
-    def on_state(self, m: TeamState) -> None:
-        state = _floats(m.state)
-        reason = self.assembler.add_state(m.episode, m.step, state, num_robots=m.num_robots,
+    def on_state(self, data: bytes) -> None:
+        try:
+            m = cdr.read_state(data)
+        except cdr.CdrError as e:
+            self._drop(UNDECODABLE, topics.absolute(self.ns, topics.STATE), str(e))
+            return
+        reason = self.assembler.add_state(m.episode, m.step, m.state, num_robots=m.num_robots,
                                           team_reward=m.team_reward, terminated=m.terminated,
                                           truncated=m.truncated, missed=m.missed_actions)
-        self._drop(reason, topics.absolute(self.ns, topics.STATE),
-                   f"episode {m.episode} step {m.step} "
-                   f"len {state.size}")
+        if reason is not None:
+            self._drop(reason, topics.absolute(self.ns, topics.STATE),
+                       f"episode {m.episode} step {m.step} len {m.state.size}")
         self._queue_ready()
 
     def on_episode(self, m: EpisodeSummary) -> None:
@@ -392,11 +415,6 @@ class TrainerNode(Node):
         self.status_thread.join(timeout=2.0)
         self.assembler.flush()
         self.log_status()
-
-
-def _floats(values: Any) -> np.ndarray:
-    """A float32[] field (array.array) as a NumPy view, without a per-element copy."""
-    return np.frombuffer(values, dtype=np.float32) if len(values) else np.zeros(0, np.float32)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -11,7 +11,7 @@ import pytest
 from rclpy.serialization import serialize_message
 
 from sdhn_msgs.msg import RobotAction, RobotObservation, TeamState
-from sdhn_train.cdr import CdrError, read_action, read_observation, read_state
+from sdhn_sim.ros.cdr import CdrError, read_action, read_observation, read_state
 
 
 def f32(a: np.ndarray) -> array.array:

@@ -17,7 +17,6 @@ import time
 from collections import Counter
 from collections.abc import Sequence
 
-import numpy as np
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -27,7 +26,7 @@ from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.actor_core import ActorCore, Decision, Drop
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.weights import WeightsError
-from sdhn_sim.ros import topics
+from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.params import boolean, declare, integer, string
 from sdhn_sim.ros.qos import LATCHED, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
@@ -82,7 +81,7 @@ class ActorNode(Node):
             RobotAction, topics.absolute(self.ns, topics.robot_action(self.robot_id)), STEP)
         self.obs_sub = self.create_subscription(
             RobotObservation, topics.absolute(self.ns, topics.robot_obs(self.robot_id)),
-            self.on_obs, STEP)
+            self.on_obs, STEP, raw=True)
 
     def on_weights(self, msg: PolicyWeights) -> None:
         try:
@@ -98,9 +97,14 @@ class ActorNode(Node):
         if self.obs_sub is None:
             self.open_step_topics()
 
-    def on_obs(self, msg: RobotObservation) -> None:
-        obs = np.frombuffer(msg.obs, dtype=np.float32)
-        out = self.core.on_obs(msg.episode, msg.step, msg.robot_id, msg.num_robots, obs,
+    def on_obs(self, data: bytes) -> None:
+        # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per step.
+        try:
+            msg = cdr.read_observation(data)
+        except cdr.CdrError as e:
+            self.drop("undecodable", f"observation: {e}")
+            return
+        out = self.core.on_obs(msg.episode, msg.step, msg.robot_id, msg.num_robots, msg.obs,
                                done=msg.terminated or msg.truncated)
         if isinstance(out, Decision):
             assert self.action_pub is not None

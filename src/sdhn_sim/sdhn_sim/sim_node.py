@@ -33,7 +33,7 @@ from rclpy.timer import Timer
 from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.lockstep import EpisodeResult, Frame, LockstepSim, SimConfig, SimConfigError
-from sdhn_sim.ros import topics
+from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.params import declare, floating, integer, string
 from sdhn_sim.ros.qos import STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
@@ -87,7 +87,7 @@ class SimNode(Node):
         self.episode_pub: Publisher = self.create_publisher(EpisodeSummary, topics.EPISODE, STEP)
         self.action_subs = [
             self.create_subscription(RobotAction, topics.robot_action(i),
-                                     functools.partial(self.on_action, i), STEP)
+                                     functools.partial(self.on_action, i), STEP, raw=True)
             for i in range(n)]
         self._obs_msgs = [RobotObservation(robot_id=i, num_robots=n) for i in range(n)]
         for m in self._obs_msgs:
@@ -161,16 +161,21 @@ class SimNode(Node):
 
     # -- lock-step -----------------------------------------------------------------------------
 
-    def on_action(self, robot: int, msg: RobotAction) -> None:
+    def on_action(self, robot: int, data: bytes) -> None:
+        # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per action.
         if not self.started or self.deadline == float("inf"):
             self.drop("not_started", f"action from robot {robot} before step 0 or after the end")
             return
-        rid = int(msg.robot_id)
+        try:
+            msg = cdr.read_action(data)
+        except cdr.CdrError as e:
+            self.drop("undecodable", f"robot {robot}'s action: {e}")
+            return
+        rid = msg.robot_id
         if rid != robot:
             self.drop("unknown_robot", f"robot_id {rid} on robot {robot}'s action topic")
             return
-        kind = self.sim.submit(rid, int(msg.episode), int(msg.step), int(msg.action),
-                               int(msg.policy_version))
+        kind = self.sim.submit(rid, msg.episode, msg.step, msg.action, msg.policy_version)
         if kind is not None:
             self.drop(kind, f"robot {rid} episode {msg.episode} step {msg.step} action "
                       f"{msg.action}; now at episode {self.sim.episode} step {self.sim.step}")

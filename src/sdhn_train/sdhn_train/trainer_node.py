@@ -48,11 +48,10 @@ from sdhn_msgs.msg import (
     TeamState,
 )
 from sdhn_sim.envs.registry import env_names, make_env
-from sdhn_sim.ros import topics
+from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP, STEP_DEPTH
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.ros.status import write_status
-from sdhn_train import cdr
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, apply_dict, load_yaml, validate
@@ -251,7 +250,7 @@ class TrainerNode(Node):
         if kind is not None:
             self._count(kind, f"on {topic}: {detail}")
 
-    # The step topics arrive as raw CDR (``raw=True``) and are read by ``sdhn_train.cdr``: no
+    # The step topics arrive as raw CDR (``raw=True``) and are read by ``sdhn_sim.ros.cdr``: no
     # Python message objects per message (41 a step at N = 20), which kept the node behind the
     # loop under load.
 

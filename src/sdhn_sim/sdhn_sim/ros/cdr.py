@@ -1,4 +1,4 @@
-"""Read the fields the trainer needs straight from the CDR bytes of the step messages (ROS-free).
+"""Read the fields of the step messages straight from their CDR bytes (ROS-free; no rclpy import).
 
 Why: the trainer node takes 2N+1 messages per team step (N = 20: 41 messages, ~3,000 a second).
 Letting rclpy build a Python message for each (message, Header and Time objects, an array.array)

@@ -24,6 +24,7 @@ plain functions below; the constructor only declares.
 from __future__ import annotations
 
 import array
+import collections
 import functools
 import threading
 import time
@@ -199,7 +200,8 @@ class TrainerNode(Node):
         self._lag_max = 0.0  # longest executor delay of the lag timer since the last status
         self._lag_worst = 0.0
         self._lag_due: float | None = None  # the first tick only starts the clock
-        self.updates: list[tuple[int, float, float]] = []  # (version, update end, published)
+        # (version, update end, published) of the recent updates, for the status file
+        self.updates: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=200)
 
         self.weights_pub = self.create_publisher(
             PolicyWeights, topics.absolute(self.ns, topics.WEIGHTS), LATCHED)
@@ -346,7 +348,7 @@ class TrainerNode(Node):
                 "executor_lag_ms": round(lag * 1e3, 1),
                 "executor_lag_max_ms": round(self._lag_worst * 1e3, 1),
                 "weights_published": [[v, round(t_end, 4), round(t_pub, 4)]
-                                      for v, t_end, t_pub in self.updates[-200:]]}
+                                      for v, t_end, t_pub in list(self.updates)]}
 
     def log_status(self) -> dict[str, Any]:
         s = self.status()

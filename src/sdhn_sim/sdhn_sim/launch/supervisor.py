@@ -479,11 +479,16 @@ class Launcher:
                                       if c.proc is not None))
         next_status = time.monotonic() + self.cfg.status_interval
         finished = False
+        all_ready_said = False
         while not self.stop_requested and not finished:
             time.sleep(0.1)
             self.read_events()
             finished = self.check_children()
-            if time.monotonic() >= next_status:
+            if not all_ready_said and all(c.ready for c in self.children):
+                # once, at the moment it happens: a short run may end before the next line
+                all_ready_said = True
+                self.say(self.status())
+            elif time.monotonic() >= next_status:
                 next_status += self.cfg.status_interval
                 if self._tty:
                     self.out.write("\r\033[K" + self.status())

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import ctypes
 import json
 import multiprocessing as mp
 import os
@@ -156,7 +157,8 @@ class LearnerClient:
         self._from_child_r, self._from_child_w = ctx.Pipe(duplex=False)
         self.process = ctx.Process(
             target=learner_main, name="sdhn-learner", daemon=True,
-            args=(self._to_child_r, self._from_child_w, config, str(run_dir), resume))
+            args=(self._to_child_r, self._from_child_w, config, str(run_dir)),
+            kwargs={"resume": resume, "parent_pid": os.getpid()})
         self.process.start()
         self._to_child_r.close()
         self._from_child_w.close()
@@ -242,13 +244,19 @@ class LearnerClient:
 
 
 def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], run_dir: str,
-                 resume: bool) -> None:
+                 *, resume: bool, parent_pid: int) -> None:
     """Entry point of the learner process (spawned): build the learner, then train on every
     rollout that arrives until "stop" or the node's end of the pipe closes."""
     # Ctrl-C in a terminal reaches the whole process group: the node stops the learner itself
     # (a "stop" message, or the pipe closing when the node is gone).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    # A node killed outright takes its learner along at once, so a restarted trainer's new
+    # learner never races an orphan finishing an update (checkpoints are atomic either way).
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() != parent_pid:
+        return  # the node died before the line above took effect
     with contextlib.suppress(OSError):
         os.nice(LEARNER_NICE)
     from sdhn_sim.envs.api import EpisodeStats

@@ -68,7 +68,7 @@ from sdhn_train.learner_process import (
 )
 from sdhn_train.transitions import TransitionAssembler
 
-QUEUE_ROLLOUTS = 4  # rollouts waiting to be written to the learner's pipe (never seen > 1)
+QUEUE_ROLLOUTS = 4  # rollouts waiting for the pipe (the learner's receiver drains it at once)
 STATUS_PERIOD_S = 2.0
 LAG_PERIOD_S = 0.1
 UNDECODABLE = "undecodable CDR"

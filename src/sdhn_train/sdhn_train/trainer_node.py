@@ -203,12 +203,13 @@ class TrainerNode(Node):
         # (version, update end, published) of the recent updates, for the status file
         self.updates: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=200)
 
+        # The learner runs in its own process: nothing it does can hold this node's executor.
+        # Started before any topic exists: a checkpoint it cannot resume from is a config error.
+        self.learner = start_learner(p, cfg, self.run_dir)
         self.weights_pub = self.create_publisher(
             PolicyWeights, topics.absolute(self.ns, topics.WEIGHTS), LATCHED)
         self.hypergraph_pub = self.create_publisher(
             Hypergraph, topics.absolute(self.ns, topics.HYPERGRAPH), SENSOR)
-        # The learner runs in its own process: nothing it does can hold this node's executor.
-        self.learner = start_learner(p, cfg, self.run_dir)
         self.version = self.learner.start_weights.version
         self.transitions_learned = self.learner.start_transitions
         self._obs_topics = [topics.absolute(self.ns, topics.robot_obs(i)) for i in range(n)]

@@ -180,6 +180,8 @@ class RecorderNode(Node):
         self._stop_writing = threading.Event()
         self.batches = 0
         self.largest_batch = 0
+        self.write_error: str | None = None
+        self.not_written = 0
         self._writer_thread = threading.Thread(target=self.write_loop, name="mcap-writer",
                                                daemon=True)
         self._writer_thread.start()
@@ -229,6 +231,9 @@ class RecorderNode(Node):
     def on_message(self, topic: str, type_name: str, data: bytes) -> None:
         # time.time_ns() is the ROS system clock without rclpy's ~17 us per call (no sim time here)
         now = time.time_ns()
+        if self.write_error is not None:
+            self.not_written += 1
+            return
         self._pending.append((topic, type_name, data, now))  # the writer thread writes it
         if self.viz is not None and (kind := self._viz_kinds.get(topic)) is not None:
             self.viz.offer(kind, type_name, data, now)
@@ -236,10 +241,18 @@ class RecorderNode(Node):
         self._bytes += len(data)
 
     def write_loop(self) -> None:
-        """The writer thread: every WRITE_PERIOD_S, write what was queued, in arrival order."""
-        while not self._stop_writing.wait(WRITE_PERIOD_S):
+        """The writer thread: every WRITE_PERIOD_S, write what was queued, in arrival order. A
+        write that fails (disk full, file gone) stops the recording: logged, and every message
+        after it counted as not written, instead of a queue growing without end."""
+        try:
+            while not self._stop_writing.wait(WRITE_PERIOD_S):
+                self.write_pending()
             self.write_pending()
-        self.write_pending()
+        except Exception as e:
+            self.write_error = f"{type(e).__name__}: {e}"
+            self.get_logger().error(f"recording stopped, writing {self.path} failed: "
+                                    f"{self.write_error}; later messages are counted, not "
+                                    "written")
 
     def write_pending(self) -> None:
         n = len(self._pending)  # only this thread pops; callbacks only append
@@ -268,7 +281,14 @@ class RecorderNode(Node):
         if self.viz is not None:
             self.viz.stop()
         with self.lock:
-            self.writer.close()
+            try:
+                self.writer.close()
+            except OSError as e:
+                self.write_error = self.write_error or f"{type(e).__name__}: {e}"
+        if self.write_error is not None:
+            self.get_logger().error(f"recording incomplete ({self.write_error}); "
+                                    f"{len(self._pending) + self.not_written} messages not "
+                                    "written")
         per_topic = ", ".join(f"{t}={c}" for t, c in sorted(self.counts.items()) if c)
         self.get_logger().info(f"closed {self.path}: {self.writer.messages_written} messages "
                                f"({self._bytes / 1e6:.2f} MB) in {self.batches} batches "

@@ -227,16 +227,18 @@ class LearnerClient:
                     {k: float(v) for k, v in header["metrics"].items()}, graphs,
                     {k: int(v) for k, v in header["dropped"].items()}))
 
-    def stop(self, timeout: float = 10.0) -> int | None:
-        """Ask the learner to stop after the update in progress; terminate it after ``timeout``
-        (checkpoints are written atomically, so a cut never leaves a broken one)."""
+    def stop(self, timeout: float = 2.0) -> int | None:
+        """Ask the learner to stop after the update in progress; kill it after ``timeout`` (it
+        ignores SIGTERM; checkpoints are written atomically, so a cut never leaves a broken one,
+        and the update it loses was never published). Bounded, so the node stops within the
+        few seconds a supervisor allows, also when a loaded machine starves the niced learner."""
         self._outbox.put(("stop", {}, {}))
         self._outbox.put(None)
         self.process.join(timeout)
         if self.process.is_alive():
-            self.process.terminate()
-            self.process.join(2.0)
-        self._receiver.join(timeout=2.0)
+            self.process.kill()
+            self.process.join(1.0)
+        self._receiver.join(timeout=1.0)
         return self.process.exitcode
 
 

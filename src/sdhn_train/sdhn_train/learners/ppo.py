@@ -22,6 +22,7 @@ from torch import Tensor, nn
 from sdhn_policy.actor_torch import Actor
 from sdhn_policy.weights import ActorWeights
 from sdhn_train import checkpoint as ckpt
+from sdhn_train.fused_gru import use_fused_gru
 from sdhn_train.learners.base import (
     F32,
     Arrays,
@@ -55,6 +56,8 @@ class PPOConfig:
     target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
                                          "null = algorithm default (sdhn 0.01, mappo 1 = none)")
     reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
+    fused_gru: bool = opt(True, "re-run stored sequences with the fused GRU (sdhn_train."
+                                "fused_gru: nn.GRU's arithmetic, faster); false = nn.GRU")
 
     def validate(self) -> None:
         need_positive("ppo", {"rollout_len": self.rollout_len, "epochs": self.epochs,
@@ -150,6 +153,8 @@ class PPOLearner:
         if cfg.lr is None or cfg.critic_lr is None or cfg.target_tau is None:
             raise ConfigError("PPOConfig must be resolved (resolve_ppo) before use")
         self._actor, self.critic, self.cfg = actor, critic, cfg
+        use_fused_gru(actor, cfg.fused_gru)
+        use_fused_gru(critic, cfg.fused_gru)
         self.target_tau = cfg.target_tau
         self.target_critic = make_target(critic)
         self.actor_opt = torch.optim.Adam(actor.parameters(), lr=cfg.lr, eps=1e-5)

@@ -60,7 +60,7 @@ class SDHNCritic(Critic):
         The first layer is split, W [s; m] + b = (W_s s + b) + W_m m_i, so the state's part is
         computed once per team instead of once per robot (no N-fold copy of s): the same
         arithmetic as the concatenation up to float rounding (test_hypergraph checks 1e-5)."""
-        first = self.value_head[0][0]
+        first = next(iter(self.value_head[0].children()))
         assert isinstance(first, torch.nn.Linear)
         k = s.shape[-1]
         pre = F.linear(s, first.weight[:, :k], first.bias).unsqueeze(-2) \

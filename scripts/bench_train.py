@@ -12,7 +12,9 @@ Each measurement runs in its own process (so peak RSS is that run's) after one w
 iteration. Evaluation is timed once (one ``Trainer.evaluate``, eval.episodes greedy episodes)
 and charged at the configured rate: every ``eval.interval`` env-steps, as ``Trainer.run`` does.
 Per CPU-second figures are what the process itself needs (on an idle machine with 1 thread they
-equal the wall figures); with --repeat, min and median over the repeats are printed.
+equal the wall figures); with --repeat, min and median over the repeats are printed. With
+``--set ppo.concurrent_actor_critic=true`` the critic and actor-update shares overlap (they run
+at the same time), so they sum past 100 % and "other" goes negative.
 """
 
 from __future__ import annotations

@@ -54,14 +54,14 @@ class PPOConfig:
     entropy_coef: float = opt(0.01, "entropy bonus weight")
     max_grad_norm: float = opt(10.0, "gradient-norm clip for actor and critic")
     normalize_advantages: bool = opt(True, "standardise advantages per minibatch")
-    target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
-                                         "null = algorithm default (sdhn 0.01, mappo 1 = none)")
-    reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
     concurrent_actor_critic: bool = opt(
         False, "run each minibatch's actor half on a second thread beside the critic's (same "
                "arithmetic; 2 cores, joins twice per minibatch, no per-op barrier)")
     fused_gru: bool = opt(True, "re-run stored sequences with the fused GRU (sdhn_train."
                                 "fused_gru: nn.GRU's arithmetic, faster); false = nn.GRU")
+    target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
+                                         "null = algorithm default (sdhn 0.01, mappo 1 = none)")
+    reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
 
     def validate(self) -> None:
         need_positive("ppo", {"rollout_len": self.rollout_len, "epochs": self.epochs,

@@ -223,3 +223,59 @@ def test_rate_republishes_every_message_on_its_topic(recorded: tuple[Path, str],
         want = [m.data for m in original.messages if m.topic == topic]
         got = [m.data for m in replayed.messages if m.topic == topic]
         assert got == want, f"{topic}: {len(got)} of {len(want)} messages replayed"
+
+
+def test_rate_delivers_every_message_to_a_slow_subscriber(recorded: tuple[Path, str]) -> None:
+    """A reliable subscriber that takes 3 ms per message still gets every message at --rate 50
+    (replay waits for acknowledgements instead of overwriting its history)."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    from sdhn_sim.recording.schema import message_class
+
+    path, _ = recorded
+    original = read_recording(path)
+    want = Counter(m.topic for m in original.messages
+                   if "/robot_" in m.topic or m.topic.endswith(("/state", "/episode")))
+    types = {m.topic: m.type_name for m in original.messages if m.topic in want}
+    got: Counter[str] = Counter()
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("slow_sub", context=context)
+
+    def slow(topic: str) -> Any:
+        def cb(_: object) -> None:
+            time.sleep(0.003)
+            got[topic] += 1
+        return cb
+
+    subs = [node.create_subscription(message_class(types[t]), t, slow(t), STEP) for t in want]
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    import threading
+
+    spin = threading.Thread(target=executor.spin, daemon=True)
+    spin.start()
+    try:
+        done = subprocess.run([*REPLAY, str(path), "--rate", "50", "--wait", "10"],
+                              capture_output=True, text=True, timeout=120, check=False)
+        deadline = time.monotonic() + 10
+        while got != want and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        executor.shutdown()
+        for s in subs:
+            node.destroy_subscription(s)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert done.returncode == 0, done.stderr
+    assert sum(got.values()) > 200
+    assert got == want, {t: (got[t], want[t]) for t in want if got[t] != want[t]}
+
+
+@pytest.mark.parametrize("rate", ["1e-300", "1e300", "nan", "-1"])
+def test_rate_out_of_range_is_one_line(recorded: tuple[Path, str], rate: str) -> None:
+    path, _ = recorded
+    done = subprocess.run([*REPLAY, str(path), "--rate", rate], capture_output=True, text=True,
+                          timeout=60, check=False)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert "--rate" in done.stderr.strip().splitlines()[-1]

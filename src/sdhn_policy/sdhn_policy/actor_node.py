@@ -63,6 +63,7 @@ class ActorNode(Node):
             raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {WEIGHTS_ALLOWED}") from e
         self.robot_id = robot_id
         self.drops: Counter[str] = Counter()
+        self.failed_reason = ""  # set when this actor can never act (sdhn_sim.ros.runner)
         self.obs_sub: Subscription | None = None
         self.action_pub: Publisher | None = None
         weights_topic = topics.absolute(self.ns, topics.WEIGHTS)
@@ -109,6 +110,9 @@ class ActorNode(Node):
             self.action_pub.publish(a)
         elif isinstance(out, Drop):
             self.drop(out.kind, f"episode {msg.episode} step {msg.step}: {out.reason}")
+            if out.kind == "wrong_obs_length":  # these weights can never act in this env
+                self.failed_reason = (f"robot {self.robot_id} cannot act: {out.reason} "
+                                      "(weights do not fit the environment)")
 
     def drop(self, kind: str, detail: str) -> None:
         self.drops[kind] += 1

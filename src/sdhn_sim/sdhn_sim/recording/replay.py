@@ -4,8 +4,13 @@
 --summary          per-episode table: the simulator's EpisodeSummary messages, recomputed from the
                    recorded TeamState for episodes without one (source column says which).
 --rate X           republish every recorded message on its own topic at X times the recorded speed
-                   (1 = as recorded), with the contract's QoS (policy/weights latched, hypergraph
-                   best effort, the rest STEP). Waits up to --wait seconds for subscribers first.
+                   (1 = as recorded, 0.001..1000), with the contract's QoS (policy/weights
+                   latched, hypergraph best effort, the rest STEP). Waits up to --wait seconds for
+                   subscribers first. Flow control: every reliable topic waits for its matched
+                   subscribers to acknowledge before its history window could overwrite an
+                   unacknowledged sample, and once more before exiting; a slow subscriber slows
+                   the replay instead of losing messages. Messages not acknowledged within
+                   --ack-timeout are counted, named in one line, and the exit code is 1.
 --export-episode K PNG frames (frame_<step>.png) of episode K rendered from the recorded TeamState
 --out DIR          positions, on the MAIF map of the recorded instance id (recording.reader).
 --add-viz          write a copy with the viz channels (/viz/scene, /viz/hypergraph,
@@ -21,7 +26,8 @@
 
 With no action flag it prints the topics and message counts. Exit codes: 0 done (also for a
 truncated recording: the readable part is used and one line says where it stops), 1 the requested
-episode is not in the recording, 2 bad arguments, a port in use, or not an MCAP file.
+episode is not in the recording or --rate could not deliver every message, 2 bad
+arguments, a port in use, or not an MCAP file.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import json
 import sys
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 from sdhn_sim.recording.reader import (
@@ -45,6 +52,9 @@ from sdhn_sim.recording.reader import (
     write_with_viz,
 )
 
+MIN_RATE, MAX_RATE = 0.001, 1000.0
+ACK_WINDOW = 32  # reliable samples in flight per topic (half the STEP history depth)
+
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="replay", description="Summarise, republish or render "
@@ -55,6 +65,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="republish at X times the recorded speed (X > 0)")
     parser.add_argument("--wait", type=float, default=2.0, metavar="S",
                         help="with --rate: seconds to wait for subscribers before publishing")
+    parser.add_argument("--ack-timeout", type=float, default=10.0, metavar="S",
+                        help="with --rate: seconds to wait for subscribers' acknowledgements")
     parser.add_argument("--export-episode", type=int, default=None, metavar="K",
                         help="write PNG frames of episode K (needs --out)")
     parser.add_argument("--out", type=Path, default=None, metavar="PATH",
@@ -70,8 +82,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--loop", action="store_true",
                         help="with --foxglove: start over after the last state until Ctrl-C")
     args = parser.parse_args(argv)
-    if args.rate is not None and not args.rate > 0:
-        parser.error(f"--rate: {args.rate}; allowed: a number > 0 (1 = recorded speed)")
+    if args.rate is not None and not MIN_RATE <= args.rate <= MAX_RATE:
+        parser.error(f"--rate: {args.rate}; allowed: {MIN_RATE}..{MAX_RATE:g} "
+                     "(1 = recorded speed)")
+    for name in ("wait", "ack_timeout"):
+        if not 0 <= getattr(args, name) <= 3600:
+            parser.error(f"--{name.replace('_', '-')}: {getattr(args, name)}; allowed: 0..3600")
     if args.export_episode is not None and args.add_viz:
         parser.error("--export-episode and --add-viz: one at a time (each takes --out)")
     if args.export_episode is not None and args.out is None:
@@ -111,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.foxglove:
         code = max(code, serve_foxglove(rec, args.host, args.port, args.rate or 1.0, args.loop))
     elif args.rate is not None:
-        republish(rec, args.rate, args.wait)
+        code = max(code, republish(rec, args.rate, args.wait, args.ack_timeout))
     if not (args.summary or args.export_episode is not None or args.rate is not None
             or args.add_viz or args.foxglove):
         for topic, count in sorted(rec.topics().items()):
@@ -239,11 +255,13 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
     return 0
 
 
-def republish(rec: Recording, rate: float, wait: float) -> None:
+def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.0) -> int:
     """Publish the raw CDR of every message again, paced by the recorded log times / rate
-    (viz channels, which are not ROS messages, are left out)."""
+    (viz channels, which are not ROS messages, are left out), with flow control on reliable
+    topics (module doc). 0 when every reliable message was acknowledged, else 1."""
     import rclpy
     from rclpy.context import Context
+    from rclpy.duration import Duration
 
     from sdhn_sim.recording.reader import current_cdr
     from sdhn_sim.recording.schema import message_class
@@ -254,29 +272,61 @@ def republish(rec: Recording, rate: float, wait: float) -> None:
     rclpy.init(context=context)
     node = rclpy.create_node("replay", context=context)
     pubs = {}
+    reliable: set[str] = set()
     messages = [m for m in rec.messages if m.encoding == "cdr"]
+    skipped: Counter[str] = Counter()
     try:
         for m in messages:
-            if m.topic not in pubs:
+            if m.topic not in pubs and m.topic not in skipped:
                 profile = (LATCHED if topics.team_of(m.topic, topics.WEIGHTS) else
                            SENSOR if topics.team_of(m.topic, topics.HYPERGRAPH) else STEP)
-                pubs[m.topic] = node.create_publisher(message_class(m.type_name), m.topic, profile)
+                try:
+                    cls = message_class(m.type_name)
+                except (ValueError, ImportError, AttributeError):
+                    skipped[m.topic] += 1
+                    continue
+                pubs[m.topic] = node.create_publisher(cls, m.topic, profile)
+                if profile is not SENSOR:
+                    reliable.add(m.topic)
+            elif m.topic in skipped:
+                skipped[m.topic] += 1
+        for topic, n in sorted(skipped.items()):
+            print(f"replay: skipped {n} messages of {topic}: unknown type", file=sys.stderr)
+        messages = [m for m in messages if m.topic in pubs]
         deadline = time.monotonic() + wait
         while time.monotonic() < deadline and any(p.get_subscription_count() == 0
                                                   for p in pubs.values()):
             time.sleep(0.05)
         ordered = sorted(messages, key=lambda m: m.log_time_ns)
         if not ordered:
-            return
+            return 0
+        timeout = Duration(seconds=ack_timeout)
+        in_flight: Counter[str] = Counter()  # published since the last full acknowledgement
+        lost: Counter[str] = Counter()  # not acknowledged within the timeout
         t0, start = ordered[0].log_time_ns, time.monotonic()
         for m in ordered:
             delay = (m.log_time_ns - t0) / 1e9 / rate - (time.monotonic() - start)
             if delay > 0:
                 time.sleep(delay)
-            pubs[m.topic].publish(current_cdr(m))
+            pub = pubs[m.topic]
+            if m.topic in reliable and in_flight[m.topic] >= ACK_WINDOW:
+                if not pub.wait_for_all_acked(timeout):
+                    lost[m.topic] += in_flight[m.topic]
+                in_flight[m.topic] = 0
+            pub.publish(current_cdr(m))
+            in_flight[m.topic] += 1
+        for topic in reliable:  # the last window, before the writers go away
+            if in_flight[topic] and not pubs[topic].wait_for_all_acked(timeout):
+                lost[topic] += in_flight[topic]
+        elapsed = time.monotonic() - start
         print(f"republished {len(ordered)} messages on {len(pubs)} topics in "
-              f"{time.monotonic() - start:.2f} s (rate {rate}x)")
-        time.sleep(0.2)  # let reliable writers hand the last samples over
+              f"{elapsed:.2f} s (rate {rate}x)")
+        if lost:
+            names = ", ".join(f"{t}={n}" for t, n in sorted(lost.items()))
+            print(f"replay: error: {sum(lost.values())} messages not acknowledged within "
+                  f"{ack_timeout:g} s by a matched subscriber ({names})", file=sys.stderr)
+            return 1
+        return 0
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)

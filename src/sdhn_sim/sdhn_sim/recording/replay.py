@@ -132,6 +132,10 @@ def main(argv: list[str] | None = None) -> int:
             or args.add_viz or args.foxglove):
         for topic, count in sorted(rec.topics().items()):
             print(f"{count:>8}  {topic}")
+    if rec.undecodable:
+        where = ", ".join(f"{t}={n}" for t, n in sorted(rec.undecodable.items()))
+        print(f"replay: skipped {sum(rec.undecodable.values())} messages of an unknown type or "
+              f"with malformed CDR ({where})", file=sys.stderr)
     return code
 
 
@@ -282,7 +286,7 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
                            SENSOR if topics.team_of(m.topic, topics.HYPERGRAPH) else STEP)
                 try:
                     cls = message_class(m.type_name)
-                except (ValueError, ImportError, AttributeError):
+                except (ValueError, LookupError, ImportError):  # schema.UnknownMessageType
                     skipped[m.topic] += 1
                     continue
                 pubs[m.topic] = node.create_publisher(cls, m.topic, profile)

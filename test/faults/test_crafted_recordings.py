@@ -60,3 +60,37 @@ def test_garbage_cdr_is_one_line(tmp_path: Path, action: list[str]) -> None:
     done = replay(tmp_path, str(rec), *[a.format(tmp=tmp_path) for a in action])
     assert "Traceback" not in done.stderr, done.stderr
     assert done.returncode in (0, 1, 2), done.stderr
+
+
+FIXTURE = REPO / "test" / "fixtures" / "maif-tiny-pre-instance-id.mcap"
+
+
+def test_export_never_writes_over_existing_files(tmp_path: Path) -> None:
+    (tmp_path / "taken").write_text("x")
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "frame_00000.png").write_text("mine")
+    for out in ("taken", "full", "taken/sub"):
+        done = replay(tmp_path, str(FIXTURE), "--export-episode", "0", "--out",
+                      str(tmp_path / out))
+        assert done.returncode == 2, (out, done.stderr)
+        assert len(done.stderr.strip().splitlines()) == 1 and "--out" in done.stderr
+    assert (tmp_path / "full" / "frame_00000.png").read_text() == "mine"
+
+
+def _small_disk() -> None:  # in the child: files may not grow past 8 KiB (EFBIG, like ENOSPC)
+    import resource
+    import signal
+
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (8 * 1024, 8 * 1024))
+
+
+def test_add_viz_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path) -> None:
+    out = tmp_path / "out.mcap"
+    done = subprocess.run([ROS2, "run", "sdhn_sim", "replay", str(FIXTURE), "--add-viz",
+                           "--out", str(out)], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=120, check=False, preexec_fn=_small_disk)  # noqa: PLW1509
+    assert done.returncode == 2, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "cannot write" in done.stderr, (
+        done.stderr)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], "partial output left behind"

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import threading
 import time
@@ -120,10 +121,15 @@ def main(argv: list[str] | None = None) -> int:
     code = 0
     if args.summary:
         print(format_rows(episode_rows(rec)))
-    if args.export_episode is not None:
-        code = export(rec, args.export_episode, args.out, args.cell_px)
-    if args.add_viz:
-        code = max(code, add_viz(rec, args.out))
+    try:
+        if args.export_episode is not None:
+            code = export(rec, args.export_episode, args.out, args.cell_px)
+        if args.add_viz:
+            code = max(code, add_viz(rec, args.out))
+    except OSError as e:  # a full disk, a read-only or missing directory
+        print(f"replay: error: --out: cannot write {e.filename or args.out}: "
+              f"{e.strerror or e}", file=sys.stderr)
+        return 2
     if args.foxglove:
         code = max(code, serve_foxglove(rec, args.host, args.port, args.rate or 1.0, args.loop))
     elif args.rate is not None:
@@ -147,6 +153,10 @@ def export(rec: Recording, episode: int, out: Path, cell_px: int) -> int:
     except KeyError:
         print(f"replay: error: episode {episode} has no recorded state", file=sys.stderr)
         return 1
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        print(f"replay: error: --out: {out} exists and is not an empty directory; frames are "
+              "never written over other files", file=sys.stderr)
+        return 2
     out.mkdir(parents=True, exist_ok=True)
     for step, image in zip(frames.steps, frames.images, strict=True):
         Image.fromarray(image).save(out / f"frame_{step:05d}.png")
@@ -163,10 +173,17 @@ def add_viz(rec: Recording, out: Path | None) -> int:
         return 0
     requested = out or rec.path.with_name(f"{rec.path.stem}-viz.mcap")
     target = fresh_path(requested)  # never the input, never an existing file
-    done = write_with_viz(rec, target)
+    # Atomic: written beside the target, renamed when complete; a failed write (a full disk)
+    # leaves nothing (sdhn_sim.litter cleans a killed writer's temporary file).
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.w.tmp")
+    try:
+        done = write_with_viz(rec, tmp)
+        if done.team_ns is not None:
+            os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)
     if done.team_ns is None:
         print(f"replay: {rec.path} has no sdhn_msgs/TeamState to draw; nothing written")
-        target.unlink()
         return 0
     written = ", ".join(f"{t}={c}" for t, c in sorted(done.written.items())) or "none"
     dropped = ", ".join(f"{k}={v}" for k, v in sorted(done.dropped.items())) or "none"

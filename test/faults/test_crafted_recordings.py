@@ -89,7 +89,7 @@ def test_add_viz_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path) -
     out = tmp_path / "out.mcap"
     done = subprocess.run([ROS2, "run", "sdhn_sim", "replay", str(FIXTURE), "--add-viz",
                            "--out", str(out)], cwd=tmp_path, capture_output=True, text=True,
-                          timeout=120, check=False, preexec_fn=_small_disk)  # noqa: PLW1509
+                          timeout=120, check=False, preexec_fn=_small_disk)
     assert done.returncode == 2, done.stderr
     assert len(done.stderr.strip().splitlines()) == 1 and "cannot write" in done.stderr, (
         done.stderr)

@@ -178,3 +178,8 @@ def test_bad_input_is_one_line_and_exit_2(case: str, tmp_path: Path) -> None:
     assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
     one_line(r.stderr)
     assert not root.exists()  # no junk run directory
+
+
+def test_debug_shows_the_traceback(tmp_path: Path) -> None:
+    r = train("--seed", "-1", "--debug", "--set", f"log.root={tmp_path}", "--print-config")
+    assert r.returncode != 0 and "Traceback" in r.stderr and "train.seed" in r.stderr

@@ -577,10 +577,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a field, e.g. --set episodes=3 --set restart.policy=on-failure")
     p.add_argument("--print-config", action="store_true", help="print the final config and exit")
+    p.add_argument("--debug", action="store_true", help="show tracebacks of refused inputs")
     args = p.parse_args(argv)
     try:
         cfg = load_config(args.config, args.set)
     except (LaunchConfigError, OverrideError) as e:
+        if args.debug:
+            raise
         print(f"launch: invalid configuration: {e}", file=sys.stderr)
         return 2
     if args.print_config:
@@ -597,6 +600,8 @@ def main(argv: list[str] | None = None) -> int:
         launcher = Launcher(cfg)
         launcher.write_config()
     except OSError as e:
+        if args.debug:
+            raise
         print(f"launch: invalid configuration: run_dir: cannot write {e.filename or run_dir}: "
               f"{e.strerror or e}", file=sys.stderr)
         return 2

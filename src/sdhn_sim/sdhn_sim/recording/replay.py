@@ -80,6 +80,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--host", default="127.0.0.1", help="with --foxglove: address to bind")
     parser.add_argument("--port", type=int, default=8765,
                         help="with --foxglove: port (0 = any free port)")
+    parser.add_argument("--debug", action="store_true",
+                        help="show tracebacks of refused inputs and unwritable outputs")
     parser.add_argument("--loop", action="store_true",
                         help="with --foxglove: start over after the last state until Ctrl-C")
     args = parser.parse_args(argv)
@@ -114,6 +116,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"replay: error: no such file {args.recording}", file=sys.stderr)
         return 2
     except (NotMcapError, OSError) as e:
+        if args.debug:
+            raise
         print(f"replay: error: {e}", file=sys.stderr)
         return 2
     if rec.truncated is not None:
@@ -127,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.add_viz:
             code = max(code, add_viz(rec, args.out))
     except OSError as e:  # a full disk, a read-only or missing directory
+        if args.debug:
+            raise
         print(f"replay: error: --out: cannot write {e.filename or args.out}: "
               f"{e.strerror or e}", file=sys.stderr)
         return 2

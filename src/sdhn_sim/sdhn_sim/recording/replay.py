@@ -54,7 +54,7 @@ from sdhn_sim.recording.reader import (
 )
 
 MIN_RATE, MAX_RATE = 0.001, 1000.0
-ACK_WINDOW = 32  # reliable samples in flight per topic (half the STEP history depth)
+ACK_WINDOW = 48  # reliable samples in flight per topic (< the STEP history depth, 64)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -295,6 +295,8 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
     from sdhn_sim.ros import topics
     from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
+    profile_file = Path(__file__).resolve().parent.parent / "data" / "fastdds-replay.xml"
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(profile_file))
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("replay", context=context)
@@ -327,7 +329,7 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
         ordered = sorted(messages, key=lambda m: m.log_time_ns)
         if not ordered:
             return 0
-        timeout = Duration(seconds=ack_timeout)
+        timeout, stalled = Duration(seconds=ack_timeout), Duration(seconds=0.1)
         in_flight: Counter[str] = Counter()  # published since the last full acknowledgement
         lost: Counter[str] = Counter()  # not acknowledged within the timeout
         t0, start = ordered[0].log_time_ns, time.monotonic()
@@ -337,7 +339,9 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
                 time.sleep(delay)
             pub = pubs[m.topic]
             if m.topic in reliable and in_flight[m.topic] >= ACK_WINDOW:
-                if not pub.wait_for_all_acked(timeout):
+                # A topic that already timed out is not waited on for long again: its
+                # subscriber is stalled, and the replay keeps its pace for the others.
+                if not pub.wait_for_all_acked(stalled if m.topic in lost else timeout):
                     lost[m.topic] += in_flight[m.topic]
                 in_flight[m.topic] = 0
             pub.publish(current_cdr(m))

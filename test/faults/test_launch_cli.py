@@ -75,7 +75,7 @@ def test_an_unwritable_run_dir_is_one_line(tmp_path: Path, bad: str) -> None:
 
 def test_an_actor_that_cannot_act_fails(tmp_path: Path) -> None:
     """Weights with another observation length given to the actor directly (no launcher check):
-    the first observation it cannot use ends it with exit code 1 and one line."""
+    three observations it cannot use before any answer end it with exit code 1 and one line."""
     import rclpy
     from rclpy.context import Context
 
@@ -100,7 +100,9 @@ def test_an_actor_that_cannot_act_fails(tmp_path: Path) -> None:
         msg = RobotObservation()
         msg.robot_id, msg.num_robots = 0, 2
         msg.obs = [0.0] * 7
-        pub.publish(msg)
+        for _ in range(3):  # as the simulator re-sends step 0 to a silent actor
+            pub.publish(msg)
+            time.sleep(0.2)
         _, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:

@@ -284,6 +284,9 @@ def test_viz_limits_connections_and_logs_who_connects() -> None:
             with pytest.raises(TimeoutError):
                 s.recv(16)  # open: nothing sent, nothing closed
         assert node.wait_for_line("refused 127.0.0.1", timeout=5), node.output
+        socks[0].sendall(b"GET / HTTP/1.1\r\nHost: x\r\nOrigin: http://evil.example\r\n\r\n")
+        assert node.wait_for_line("Origin http://evil.example", timeout=5), node.output
+        assert node.wait_for_line("refused 127.0.0.1", timeout=5), node.output
         connected = [ln for ln in node.output.splitlines() if "client connected from 127.0.0.1"
                      in ln]
         assert len(connected) == 2, node.output

@@ -4,7 +4,8 @@ connects (the foxglove SDK has neither).
 The SDK server binds 127.0.0.1 on a free port; the gate listens on the address and port the user
 asked for, accepts at most ``max_clients`` connections at a time (more are logged and closed at
 once), logs each client's address when it connects and when it leaves, and copies bytes both
-ways. Stdlib only, no ROS; one thread per direction per client.
+ways; the Origin header of each client's upgrade request is logged too. Stdlib only, no ROS;
+one thread per direction per client.
 """
 
 from __future__ import annotations
@@ -15,6 +16,17 @@ import threading
 from collections.abc import Callable
 
 BUFFER = 64 * 1024
+
+
+def origin_of(request: bytes) -> str:
+    """The Origin header of an HTTP request's first bytes ('none' when there is none)."""
+    for line in request.split(b"\r\n")[1:]:
+        name, _, value = line.partition(b":")
+        if name.strip().lower() == b"origin":
+            return value.strip().decode("ascii", "replace")[:200] or "none"
+        if not line:
+            break
+    return "none"
 
 
 class Gate:
@@ -60,16 +72,20 @@ class Gate:
                 continue
             self.log(f"client connected from {who} ({n}/{self.max_clients})")
             done = threading.Event()
-            for a, b in ((client, upstream), (upstream, client)):
-                threading.Thread(target=self._pump, args=(a, b, done, who), daemon=True).start()
+            for a, b, first in ((client, upstream, True), (upstream, client, False)):
+                threading.Thread(target=self._pump, args=(a, b, done, who, first),
+                                 daemon=True).start()
 
     def _pump(self, src: socket.socket, dst: socket.socket, done: threading.Event,
-              who: str) -> None:
+              who: str, request: bool = False) -> None:
         try:
             while True:
                 data = src.recv(BUFFER)
                 if not data:
                     break
+                if request:  # the client's HTTP upgrade request: say where it comes from
+                    request = False
+                    self.log(f"client {who}: Origin {origin_of(data)}")
                 dst.sendall(data)
         except OSError:
             pass

@@ -42,8 +42,18 @@ def test_a_reused_run_dir_is_refused(tmp_path: Path) -> None:
     (run / "episodes.csv").write_text("episode\n0\n")
     r = launch("--set", f"run_dir={run}", "--set", f"weights={SHIPPED}", "--set", "episodes=1")
     assert r.returncode == 2
-    assert "already exists" in one_line(r.stderr)
+    assert "already holds a run" in one_line(r.stderr)
     assert sorted(p.name for p in run.iterdir()) == ["episodes.csv"]
+
+
+def test_a_wrappers_own_file_does_not_make_a_run(tmp_path: Path) -> None:
+    """scripts/soak.py writes its log into the run directory before it starts the launcher."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "soak-launcher.log").write_text("")
+    r = launch("--set", f"run_dir={run}", "--set", f"weights={SHIPPED}", "--set", "episodes=1",
+               "--set", "recorder=false", timeout=120)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr
 
 
 def test_weights_that_do_not_fit_the_env_are_refused_before_start(tmp_path: Path) -> None:

@@ -100,8 +100,18 @@ def test_a_reused_run_name_is_refused(run: Path) -> None:
     r = train(*SMALL, "--set", f"log.root={run.parent}", "--run-name", "r",
               "--total-steps", "128")
     assert r.returncode == 2, r.stderr
-    assert "already exists" in one_line(r.stderr)
+    assert "already holds a run" in one_line(r.stderr)
     assert snapshot(run) == before
+
+
+def test_a_directory_prepared_by_a_runner_is_not_a_run(tmp_path: Path) -> None:
+    """The experiment runner writes its spec and config into the run directory first."""
+    d = tmp_path / "r"
+    d.mkdir()
+    (d / "run_config.yaml").write_text("train: {seed: 3}\n")
+    r = train(*SMALL, "--config", str(d / "run_config.yaml"), "--set", f"log.root={tmp_path}",
+              "--run-name", "r", "--total-steps", "64")
+    assert r.returncode == 0, r.stderr
 
 
 def _wait_for(pred, timeout: float) -> None:  # type: ignore[no-untyped-def]

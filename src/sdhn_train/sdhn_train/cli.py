@@ -39,6 +39,9 @@ SHORTCUTS = {  # --flag -> config field
     "env": "env.name", "algo": "algo.name", "seed": "train.seed",
     "total_steps": "train.total_steps", "num_envs": "env.num_envs", "run_name": "log.run_name",
 }
+# What a run writes: a directory holding any of them is a run (another run's; never merged).
+# Other files (an experiment runner's spec or config beside it) do not make it one.
+RUN_FILES = ("checkpoints", "config.yaml", "metrics.csv", "actor.safetensors", "summary.json")
 # Fields a resume may change: they change neither the networks, the optimiser nor the data.
 RESUME_SAFE = frozenset({"train.total_steps", "log.checkpoint_interval", "log.progress",
                          "log.tensorboard", "eval.interval", "train.threads"})
@@ -148,9 +151,10 @@ def _main(args: argparse.Namespace) -> int:
     run_dir = run_dir_of(resume) if resume is not None else None
     if resume is None:
         run_dir = default_run_dir(cfg)
-        if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
-            raise ConfigError(f"log.run_name: run directory {run_dir} already exists; choose "
-                              "another name or --resume it")
+        if run_dir.exists() and (not run_dir.is_dir()
+                                 or any((run_dir / f).exists() for f in RUN_FILES)):
+            raise ConfigError(f"log.run_name: run directory {run_dir} already holds a run; "
+                              "choose another name or --resume it")
     trainer = Trainer(cfg, run_dir=run_dir)
     return trainer.run(resume=resume)
 

@@ -320,6 +320,10 @@ def status_dir(run_dir: Path) -> Path:
 
 
 SIM_EVENTS = "sim-events.jsonl"
+# What a launch writes into its run_dir: a directory holding any of them is another run's and is
+# refused (its logs, events and CSV would be read and appended to as this run's). Other files
+# (a wrapper's own log, like scripts/soak.py's) do not make it one.
+RUN_FILES = ("launch.yaml", "logs", "status", "episodes.csv", "recording.mcap", "trainer")
 
 
 def _die_with_parent() -> None:
@@ -591,10 +595,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     clean_fastdds_shm()  # segments of killed participants (sdhn_sim.litter)
     run_dir = Path(cfg.run_dir)
-    if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
-        print(f"launch: invalid configuration: run_dir: {run_dir} already exists and is not "
-              "empty; every run gets its own directory (choose another, or leave run_dir "
-              "unset for a fresh one)", file=sys.stderr)
+    if run_dir.exists() and (not run_dir.is_dir()
+                             or any((run_dir / f).exists() for f in RUN_FILES)):
+        print(f"launch: invalid configuration: run_dir: {run_dir} already holds a run; every "
+              "run gets its own directory (choose another, or leave run_dir unset for a fresh "
+              "one)", file=sys.stderr)
         return 2
     try:
         launcher = Launcher(cfg)

@@ -102,10 +102,11 @@ def echo_main(robot: int, ns: str) -> int:
     rclpy.init()
     node = rclpy.create_node("echo", namespace=topics.absolute(ns, topics.robot(robot)))
     pub = node.create_publisher(RobotAction, topics.absolute(ns, topics.robot_action(robot)), STEP)
+    a = RobotAction()  # built once: the echo does no Python work per message beyond the answer
+    a.robot_id = robot
 
     def on_obs(m: RobotObservation) -> None:
-        a = RobotAction()
-        a.episode, a.step, a.robot_id = m.episode, m.step, m.robot_id
+        a.episode, a.step = m.episode, m.step
         pub.publish(a)
 
     node.create_subscription(RobotObservation, topics.absolute(ns, topics.robot_obs(robot)), on_obs,
@@ -138,12 +139,17 @@ def ceiling(n: int, steps: int) -> float:
             for i in range(n)]
     got: set[int] = set()
     step = [0]
+    resent = [0]
     obs = array.array("f", np.zeros(57, np.float32).tobytes())
+    msgs = []  # built once: per step only the step field changes
+    for i in range(n):
+        m = RobotObservation()
+        m.robot_id, m.num_robots, m.obs = i, n, obs
+        msgs.append(m)
 
     def publish() -> None:
-        for i, p in enumerate(pubs):
-            m = RobotObservation()
-            m.step, m.robot_id, m.num_robots, m.obs = step[0], i, n, obs
+        for m, p in zip(msgs, pubs, strict=True):
+            m.step = step[0]
             p.publish(m)
 
     def on_action(m: RobotAction) -> None:
@@ -169,13 +175,22 @@ def ceiling(n: int, steps: int) -> float:
             ex.spin_once(timeout_sec=0.02)
 
         def run_until(target: int) -> None:
-            last, t_last = step[0], time.monotonic()
+            # Matching is only visible from this side: an echo may not yet receive from us when
+            # we already see it, and a volatile step sent then is lost. So a round with no
+            # answer for 0.5 s is sent again (to every echo; the answers are idempotent), as the
+            # simulator re-sends its first step. This was the N=20 stall at step 0.
+            last, t_last, t_sent = step[0], time.monotonic(), time.monotonic()
             while step[0] < target:
                 ex.spin_once(timeout_sec=0.05)
+                now = time.monotonic()
                 if step[0] != last:
-                    last, t_last = step[0], time.monotonic()
-                elif time.monotonic() - t_last > 5.0:
+                    last, t_last, t_sent = step[0], now, now
+                elif now - t_last > 20.0:
                     raise RuntimeError(f"ceiling: stalled at step {step[0]}")
+                elif now - t_sent > 0.5:
+                    t_sent = now
+                    resent[0] += 1
+                    publish()
 
         publish()
         run_until(min(50, steps // 5))

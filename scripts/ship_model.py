@@ -2,12 +2,14 @@
 """Ship a trained MAIF actor under models/: the weights pair plus a card with what it achieves.
 
     .venv/bin/python scripts/ship_model.py RUN_DIR models/maif-10-sdhn [--instances 100]
+    .venv/bin/python scripts/ship_model.py RUN_DIR OUT --checkpoint step_000001200128
 
-Evaluates the run's exported ``actor.safetensors`` exactly as it deploys (the torch-free NumPy
-runtime, greedy, one episode per instance) on the training and the held-out instance sets, next to
-the scripted baselines, and writes ``actor.safetensors`` + ``actor.json`` + ``card.md`` +
-``card.json`` into the model directory (replacing what was there). Success rate and makespan
-(NC when nothing completed) come first; return second, under the reward named.
+Evaluates the run's exported ``actor.safetensors`` (or the actor of one of its checkpoints)
+exactly as it deploys (the torch-free NumPy runtime, greedy, one episode per instance) on the
+training and the held-out instance sets, next to the scripted baselines, and writes
+``actor.safetensors`` + ``actor.json`` + ``card.md`` + ``card.json`` into the model directory
+(replacing what was there). Success rate and makespan (NC when nothing completed) come first;
+return second, under the reward named.
 """
 
 from __future__ import annotations
@@ -16,12 +18,14 @@ import argparse
 import json
 import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.weights import save_actor_file
 from sdhn_sim.envs import make_env
 from sdhn_sim.envs.api import EpisodeStats
 from sdhn_sim.envs.maif import MaifEnv
@@ -64,16 +68,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--instances", type=int, default=100, help="instances 0..k-1 of each set")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--note", default="", help="one paragraph for the card (how it was trained)")
+    p.add_argument("--checkpoint", help="ship the actor of this checkpoint of the run (a name in "
+                                        "RUN_DIR/checkpoints/) instead of its exported actor")
     args = p.parse_args(argv)
     actor = args.run_dir / "actor.safetensors"
     cfg_file = args.run_dir / "config.yaml"
+    summary_file = args.run_dir / "summary.json"
+    summary = json.loads(summary_file.read_text()) if summary_file.is_file() else {}
+    if args.checkpoint:
+        from sdhn_train.export import actor_from_checkpoint  # torch only on this path
+
+        blob, step = actor_from_checkpoint(args.run_dir / "checkpoints" / args.checkpoint)
+        actor = Path(tempfile.mkdtemp(prefix="ship-")) / "actor.safetensors"
+        save_actor_file(actor, blob)
+        summary = {"global_step": step}
     if not actor.is_file() or not cfg_file.is_file():
         print(f"ship_model: {args.run_dir} has no actor.safetensors/config.yaml", file=sys.stderr)
         return 2
     cfg = yaml.safe_load(cfg_file.read_text())
     env_name, reward = cfg["env"]["name"], cfg["env"].get("reward", "corrected")
-    summary_file = args.run_dir / "summary.json"
-    summary = json.loads(summary_file.read_text()) if summary_file.is_file() else {}
     rt = ActorRuntime.from_file(actor)
     k = args.instances
     results: dict[str, dict[str, object]] = {}

@@ -2,6 +2,13 @@
 every minute; prints steps, recovery times, dropped messages, every process's RSS at start and
 end, and whether the MCAP recording is complete. Not a CI test.
 
+Issue 15's figures, each from data (never log text): the share of the simulator's steps that the
+trainer turned into complete transitions (its status file against the recorded TeamStates; the
+steps a killed actor did not answer excepted), the simulator's deadline misses outside the kills'
+outages, how long after an update's end every live actor acts with the new weights (the weights'
+stamp is the update's end; the first recorded action of each actor with that version), and the
+trainer's RSS (node + its learner process) after warm-up. The load average is printed with them.
+
     .venv/bin/python scripts/soak.py --minutes 10          # nice it on a shared machine
 
 Recovery time of a kill = from SIGKILL to the first simulator step that has every action again
@@ -14,6 +21,7 @@ with their own first sample.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import random
 import re
@@ -69,6 +77,65 @@ def children(parent: int) -> dict[str, int]:
                      None)
         out[f"actor_{robot}" if exe == "actor" and robot is not None else exe] = \
             int(stat.parent.name)
+    return out
+
+
+def descendants(pid: int) -> list[int]:
+    """Child processes of ``pid`` (the trainer's learner process)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[1]) == pid and fields[0] != "Z":
+                out.append(int(stat.parent.name))
+        except (OSError, IndexError, ValueError):
+            continue
+    return out
+
+
+def tree_rss_kb(pid: int) -> int | None:
+    """RSS of ``pid`` plus its children's (None once it is gone)."""
+    own = rss_kb(pid)
+    if own is None:
+        return None
+    return own + sum(rss_kb(c) or 0 for c in descendants(pid))
+
+
+def percentiles(values: list[float]) -> str:
+    if not values:
+        return "none"
+    q = sorted(values)
+
+    def at(p: float) -> float:
+        return q[min(len(q) - 1, int(p * (len(q) - 1) + 0.5))]
+
+    return (f"median {at(0.5) * 1e3:.0f} ms, p90 {at(0.9) * 1e3:.0f} ms, p99 {at(0.99) * 1e3:.0f} "
+            f"ms, max {q[-1] * 1e3:.0f} ms, {sum(v <= 1.0 for v in q)}/{len(q)} within 1 s")
+
+
+def weights_latency(rec: Any, kills: list[tuple[str, float]]) -> list[float]:
+    """Per (version, live actor): seconds from the update's end (the weights' stamp) to that
+    actor's first recorded action with the version. An actor killed in between is not live."""
+    updates = sorted({int(m.version): stamp(m) for _, m in rec.decoded("policy/weights")
+                      if int(m.version) > 1}.items())
+    first: dict[tuple[int, int], float] = {}  # (robot, version) -> first log time with >= it
+    acts = sorted(((raw.log_time_ns * 1e-9, int(a.robot_id), int(a.policy_version))
+                   for raw, a in rec.decoded("/action")))
+    best: dict[int, int] = {}
+    for t, robot, version in acts:
+        if version > best.get(robot, 0):
+            for v in range(best.get(robot, 0) + 1, version + 1):
+                first.setdefault((robot, v), t)
+            best[robot] = version
+    robots = sorted(best)
+    out = []
+    for version, t_end in updates:
+        for robot in robots:
+            t = first.get((robot, version))
+            killed = any(name == f"actor_{robot}" and t_end - 5 <= tk <= (t or t_end + 5)
+                         for name, tk in kills)
+            if t is not None and not killed:
+                out.append(t - t_end)
     return out
 
 
@@ -145,6 +212,8 @@ def main() -> int:
     cmd = [*LAUNCH, *(x for item in sets for x in ("--set", item))]
     print(f"[soak] {n} robots on {args.env}, {args.minutes} min, a kill every "
           f"{args.kill_every}s; run dir {run}; ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}")
+    load_start = os.getloadavg()
+    load_end = load_start
     run.mkdir(parents=True, exist_ok=True)
     out = open(run / "soak-launcher.log", "w")  # noqa: SIM115
     launcher = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
@@ -159,7 +228,7 @@ def main() -> int:
               f" {args.warmup}s of warm-up")
         time.sleep(args.warmup)
         pid0 = children(launcher.pid)
-        rss0 = {k: rss_kb(p) for k, p in pid0.items()}
+        rss0 = {k: tree_rss_kb(p) for k, p in pid0.items()}
         t0, t0_wall = time.monotonic(), time.time()
         next_kill = t0 + args.kill_every
         trace: dict[str, list[int]] = {k: [v or 0] for k, v in rss0.items()}
@@ -180,11 +249,12 @@ def main() -> int:
             if time.monotonic() >= next_sample:
                 next_sample += 30.0
                 for k, p in children(launcher.pid).items():
-                    trace.setdefault(k, []).append(rss_kb(p) or 0)
+                    trace.setdefault(k, []).append(tree_rss_kb(p) or 0)
             time.sleep(0.2)
         time.sleep(min(30.0, args.kill_every))  # let the last kill recover before stopping
         now_pids = children(launcher.pid)
-        rss1 = {k: rss_kb(p) for k, p in now_pids.items()}
+        rss1 = {k: tree_rss_kb(p) for k, p in now_pids.items()}
+        load_end = os.getloadavg()
         elapsed = time.monotonic() - t0
     finally:
         if launcher.poll() is None:
@@ -201,6 +271,8 @@ def main() -> int:
     steps = len(states)
     missed = sum(int(s.missed_actions) for s in states)
     print("\n[soak] results")
+    print(f"  load average (1 min) at start {load_start[0]:.1f}, at end {load_end[0]:.1f} "
+          f"({os.cpu_count()} CPUs)")
     print(f"  duration {elapsed:.0f}s: {steps} team steps ({steps / elapsed:.1f}/s), "
           f"{missed} missed actions, {episodes} episodes, "
           f"weights v{max(versions, default=0)}")
@@ -232,16 +304,34 @@ def main() -> int:
         if name in trace:
             mb = " ".join(f"{v / 1024:.0f}" for v in trace[name])
             print(f"  RSS every 30 s, {name}: {mb} MB")
-    status = [ln for ln in (run / "logs" / "trainer.log").read_text(errors="replace").splitlines()
-              if "status:" in ln]
-    if status:
-        print(f"  trainer's last status: {status[-1].split('status: ', 1)[1]}")
+    # -- issue 15: transitions, deadline misses, weights latency ------------------------------
+    status_file = run / "status" / "trainer.status.json"
+    st = json.loads(status_file.read_text()) if status_file.exists() else {}
+    made = [s for s in states_all if not (s.terminated or s.truncated)]  # steps made
+    excepted = sum(1 for s in states_all if s.missed_actions)  # a robot 'stay'ed: not learnable
+    transitions = int(st.get("transitions", 0))
+    if made:
+        print(f"\n  sim steps (whole run, terminal frames excluded): {len(made)}; with a missed "
+              f"action (killed actor): {excepted}; trainer transitions: {transitions} = "
+              f"{transitions / len(made):.1%} of all, "
+              f"{transitions / max(len(made) - excepted, 1):.2%} of the answered ones "
+              f"(goal >= 99 %)")
+        print(f"  trainer: learned {st.get('transitions_learned')} transitions, dropped "
+              f"{st.get('dropped')}, executor lag max {st.get('executor_lag_max_ms')} ms")
+    outage = 0
+    for _name, t in kills:
+        outage += recovery(states, t)[1]
+    misses = sum(1 for s in states if s.missed_actions)
+    print(f"  sim steps with a deadline miss after warm-up: {misses}; in the kills' outages: "
+          f"{outage}; elsewhere: {misses - outage} (goal 0)")
     print(f"\n  dropped messages per process: {drops_from_logs(run) or 'none'}")
     from sdhn_sim.recording.reader import read_recording
 
     mcap = run / "recording.mcap"
     if mcap.exists():
         r = read_recording(mcap)
+        print(f"  weights in use by every live actor after an update's end: "
+              f"{percentiles(weights_latency(r, kills))} (goal: all within 1 s)")
         from mcap.reader import make_reader
 
         with mcap.open("rb") as f:

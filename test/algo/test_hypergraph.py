@@ -143,3 +143,19 @@ def test_squashed_skewness_range_and_loss_value() -> None:
     sk = squashed_skewness(torch.tensor([-50.0, 0.0, 50.0]))
     torch.testing.assert_close(sk, torch.tensor([-1.0, 0.0, 1.0]))
     torch.testing.assert_close(skewness_loss(torch.tensor([0.0]), -0.6), torch.tensor(0.36))
+
+
+def test_split_value_head_equals_head_of_concatenation() -> None:
+    """The critic's first value-head layer runs split (state part once per team); values and
+    every gradient equal value_head(cat([s expanded over robots, m])) to 1e-5."""
+    critic = _critic(skew_loss=False)
+    s = torch.randn(5, 3, 8, requires_grad=True)  # state_hidden 8
+    m = torch.randn(5, 3, 4, 8, requires_grad=True)  # 4 robots, hgcn_hidden 8
+    got = critic._head(s, m)
+    grads = torch.autograd.grad(got.square().sum(), [s, m, *critic.value_head.parameters()])
+    want = critic.value_head(torch.cat([s.unsqueeze(-2).expand(5, 3, 4, 8), m], -1)).squeeze(-1)
+    want_grads = torch.autograd.grad(want.square().sum(),
+                                     [s, m, *critic.value_head.parameters()])
+    torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)
+    for g, w in zip(grads, want_grads, strict=True):
+        torch.testing.assert_close(g, w, atol=1e-5, rtol=1e-5)

@@ -65,3 +65,19 @@ def test_resume_gives_identical_parameters_and_next_rollout(algo: str, norm: boo
         np.testing.assert_array_equal(getattr(got_rollout, name), getattr(want_rollout, name),
                                       err_msg=f"rollout.{name} differs after resume")
     assert a.learner.num_updates == b.learner.num_updates == 5
+
+
+@pytest.mark.parametrize("algo", ["sdhn", "qmix"])
+def test_actor_of_a_checkpoint_is_the_actor_the_learner_exports(algo: str, tmp_path: Path) -> None:
+    from sdhn_train.export import actor_from_checkpoint
+
+    t = Trainer(_cfg(algo, tmp_path), short_episodes, run_dir=tmp_path / "run")
+    t.run_dir.mkdir(parents=True)
+    for _ in range(3):
+        t.train_iteration()
+    path = t.save_checkpoint()
+    blob, step = actor_from_checkpoint(path)
+    expected = t.learner.export_actor(t.learner.num_updates)
+    assert step == t.global_step
+    assert (blob.format, blob.version, blob.sha256) == (
+        expected.format, expected.version, expected.sha256), "checkpoint actor differs"

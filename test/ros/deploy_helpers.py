@@ -3,6 +3,7 @@ and an rclpy observer node that records what the graph publishes."""
 
 from __future__ import annotations
 
+import copy
 import signal
 import subprocess
 import sys
@@ -110,6 +111,11 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
     from sdhn_sim.ros.qos import STEP
 
+    # The test process is a starved observer on a loaded machine: a reader history as deep as a
+    # whole test run, so samples it is slow to take are never overwritten in its own cache
+    # (otherwise it can miss an action the recording and the trainer both have).
+    STEP = copy.copy(STEP)
+    STEP.depth = 65536
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("test_observer", context=context)

@@ -13,10 +13,10 @@ both before step 0, never starts a step this actor cannot answer. The decision l
 
 from __future__ import annotations
 
+import time
 from collections import Counter
 from collections.abc import Sequence
 
-import numpy as np
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -26,7 +26,7 @@ from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.actor_core import ActorCore, Decision, Drop
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.weights import WeightsError
-from sdhn_sim.ros import topics
+from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.params import boolean, declare, integer, string
 from sdhn_sim.ros.qos import LATCHED, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
@@ -63,6 +63,7 @@ class ActorNode(Node):
         except WeightsError as e:
             raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {WEIGHTS_ALLOWED}") from e
         self.robot_id = robot_id
+        self._action = RobotAction(robot_id=robot_id)
         self.drops: Counter[str] = Counter()
         self.failed_reason = ""  # set when this actor can never act (sdhn_sim.ros.runner)
         self.answered = False  # any observation answered yet
@@ -84,7 +85,7 @@ class ActorNode(Node):
             RobotAction, topics.absolute(self.ns, topics.robot_action(self.robot_id)), STEP)
         self.obs_sub = self.create_subscription(
             RobotObservation, topics.absolute(self.ns, topics.robot_obs(self.robot_id)),
-            self.on_obs, STEP)
+            self.on_obs, STEP, raw=True)
 
     def on_weights(self, msg: PolicyWeights) -> None:
         try:
@@ -100,16 +101,24 @@ class ActorNode(Node):
         if self.obs_sub is None:
             self.open_step_topics()
 
-    def on_obs(self, msg: RobotObservation) -> None:
-        obs = np.frombuffer(msg.obs, dtype=np.float32)
-        out = self.core.on_obs(int(msg.episode), int(msg.step), int(msg.robot_id),
-                               int(msg.num_robots), obs, done=msg.terminated or msg.truncated)
+    def on_obs(self, data: bytes) -> None:
+        # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per step.
+        try:
+            msg = cdr.read_observation(data)
+        except cdr.CdrError as e:
+            self.drop("undecodable", f"observation: {e}")
+            return
+        out = self.core.on_obs(msg.episode, msg.step, msg.robot_id, msg.num_robots, msg.obs,
+                               done=msg.terminated or msg.truncated)
         if isinstance(out, Decision):
             self.answered = True
             assert self.action_pub is not None
-            a = RobotAction()
-            a.header.stamp = self.get_clock().now().to_msg()
-            a.episode, a.step, a.robot_id = msg.episode, msg.step, self.robot_id
+            # One message, refilled per step (rclpy serialises at publish): no per-step message,
+            # Header and Time objects. The stamp is the wall clock the node's ROS clock reads
+            # (no simulated time in this graph), without building rclpy Time objects.
+            a = self._action
+            a.header.stamp.sec, a.header.stamp.nanosec = divmod(time.time_ns(), 1_000_000_000)
+            a.episode, a.step = msg.episode, msg.step
             a.action, a.log_prob, a.policy_version = out.action, out.log_prob, out.version
             self.action_pub.publish(a)
         elif isinstance(out, Drop):

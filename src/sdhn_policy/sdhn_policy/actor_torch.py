@@ -8,11 +8,14 @@ encoder -> GRU cell -> categorical logits. ``export()`` produces the safetensors
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 
 import torch
 from torch import Tensor, nn
 
 from sdhn_policy.weights import ActorSpec, ActorWeights, encode_actor
+
+SequenceFn = Callable[[nn.GRU, Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
 
 
 def gru_sequence(gru: nn.GRU, x: Tensor, h0: Tensor, resets: Tensor) -> tuple[Tensor, Tensor]:
@@ -47,6 +50,8 @@ class Actor(nn.Module):
             width = h
         self.encoder = nn.Sequential(*layers)
         self.gru = nn.GRU(width, spec.gru_hidden)
+        # how forward_sequence runs the GRU (a trainer may swap in an equal, faster one)
+        self.gru_sequence: SequenceFn = gru_sequence
         self.head = nn.Linear(spec.gru_hidden, spec.num_actions)
         nn.init.orthogonal_(self.head.weight, gain=0.01)  # near-uniform initial policy
         nn.init.zeros_(self.head.bias)
@@ -69,7 +74,7 @@ class Actor(nn.Module):
     def forward_sequence(self, x: Tensor, h0: Tensor, resets: Tensor) -> Tensor:
         """Re-run stored sequences: x [T, X, in], h0 [X, H], resets [T, X] bool (hidden is zeroed
         before step t where resets[t]) -> logits [T, X, A]."""
-        out, _ = gru_sequence(self.gru, self.encoder(x), h0[None], resets)
+        out, _ = self.gru_sequence(self.gru, self.encoder(x), h0[None], resets)
         return self.head(out)
 
     def tensors(self) -> dict[str, Tensor]:

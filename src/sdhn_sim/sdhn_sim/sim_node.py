@@ -33,7 +33,7 @@ from rclpy.timer import Timer
 from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.lockstep import EpisodeResult, Frame, LockstepSim, SimConfig, SimConfigError
-from sdhn_sim.ros import topics
+from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.params import declare, floating, integer, string
 from sdhn_sim.ros.qos import STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
@@ -87,8 +87,13 @@ class SimNode(Node):
         self.episode_pub: Publisher = self.create_publisher(EpisodeSummary, topics.EPISODE, STEP)
         self.action_subs = [
             self.create_subscription(RobotAction, topics.robot_action(i),
-                                     functools.partial(self.on_action, i), STEP)
+                                     functools.partial(self.on_action, i), STEP, raw=True)
             for i in range(n)]
+        self._obs_msgs = [RobotObservation(robot_id=i, num_robots=n) for i in range(n)]
+        for m in self._obs_msgs:
+            m.header.frame_id = "map"
+        self._state_msg = TeamState(env_name=cfg.env, num_robots=n)
+        self._state_msg.header.frame_id = "map"
         self.drops: Counter[str] = Counter()
         self.started = False
         # Until every robot has answered the first step, a missed deadline re-sends that step to
@@ -126,7 +131,8 @@ class SimNode(Node):
                     f"all {self.sim.num_robots} actors matched after {now - self.t_start:.2f}s; "
                     "starting episode 0")
                 self.t_start = self.t_last_log = now
-                self.events.write("started", robots=self.sim.num_robots)
+                self.events.write("started", robots=self.sim.num_robots,
+                                  reward=str(getattr(self.sim.env.env, "reward_name", "env")))
                 self.publish(self.sim.reset())
             elif now - self.t_start > self.cfg.start_timeout:
                 self.get_logger().error(
@@ -156,16 +162,21 @@ class SimNode(Node):
 
     # -- lock-step -----------------------------------------------------------------------------
 
-    def on_action(self, robot: int, msg: RobotAction) -> None:
+    def on_action(self, robot: int, data: bytes) -> None:
+        # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per action.
         if not self.started or self.deadline == float("inf"):
             self.drop("not_started", f"action from robot {robot} before step 0 or after the end")
             return
-        rid = int(msg.robot_id)
+        try:
+            msg = cdr.read_action(data)
+        except cdr.CdrError as e:
+            self.drop("undecodable", f"robot {robot}'s action: {e}")
+            return
+        rid = msg.robot_id
         if rid != robot:
             self.drop("unknown_robot", f"robot_id {rid} on robot {robot}'s action topic")
             return
-        kind = self.sim.submit(rid, int(msg.episode), int(msg.step), int(msg.action),
-                               int(msg.policy_version))
+        kind = self.sim.submit(rid, msg.episode, msg.step, msg.action, msg.policy_version)
         if kind is not None:
             self.drop(kind, f"robot {rid} episode {msg.episode} step {msg.step} action "
                       f"{msg.action}; now at episode {self.sim.episode} step {self.sim.step}")
@@ -202,13 +213,11 @@ class SimNode(Node):
 
     def publish(self, f: Frame) -> None:
         stamp = self.get_clock().now().to_msg()
-        n = self.sim.num_robots
         for i, pub in enumerate(self.obs_pubs):
             pub.publish(self.observation(f, i, stamp))
-        s = TeamState()
+        s = self._state_msg
         s.header.stamp = stamp
-        s.header.frame_id = "map"
-        s.env_name, s.episode, s.step, s.num_robots = self.cfg.env, f.episode, f.step, n
+        s.episode, s.step = f.episode, f.step
         s.state = array.array("f", np.ascontiguousarray(f.state, dtype=np.float32).tobytes())
         s.positions = array.array("i", f.positions.astype(np.int32).tobytes())
         s.team_reward, s.terminated, s.truncated = float(f.reward), f.terminated, f.truncated
@@ -219,10 +228,11 @@ class SimNode(Node):
                          else time.monotonic() + self.cfg.step_deadline)
 
     def observation(self, f: Frame, i: int, stamp: Time) -> RobotObservation:
-        m = RobotObservation()
+        """Robot i's observation of frame f, in robot i's one message object, refilled per step
+        (rclpy serialises at publish): no per-step message, Header and Time objects."""
+        m = self._obs_msgs[i]
         m.header.stamp = stamp
-        m.header.frame_id = "map"
-        m.episode, m.step, m.robot_id, m.num_robots = f.episode, f.step, i, self.sim.num_robots
+        m.episode, m.step = f.episode, f.step
         m.obs = array.array("f", np.ascontiguousarray(f.obs[i], dtype=np.float32).tobytes())
         m.reward, m.terminated, m.truncated = float(f.reward), f.terminated, f.truncated
         return m

@@ -1,11 +1,17 @@
 """Trainer node: the centralised learner of the ROS deployment (``sdhn_train trainer``).
 
 Subscribes to every robot's obs and action and to ``state`` (N from the env), assembles team
-transitions by (episode, step) (``sdhn_train.transitions``), and every ``rollout_steps``
-transitions runs the algorithm's learner, the same as the in-process trainer's, on a worker thread
-(``sdhn_train.stream_learner``). After each update: checkpoint (atomic) -> publish weights
-version + 1 (LATCHED) -> publish sampled hypergraphs (SENSOR, SDHN only). Version 1 (or the
-resumed version) is published at start so actors can begin.
+transitions by (episode, step) (``sdhn_train.transitions``) on the executor thread, and hands
+every ``rollout_steps`` transitions to the learner *process* (``sdhn_train.learner_process``:
+raw NumPy frames over a pipe, nothing pickled), which runs the algorithm's learner, the same as
+the in-process trainer's (``sdhn_train.stream_learner``), checkpoints (atomic) and sends the new
+weights back. The node publishes them (version + 1, LATCHED, stamped with the update's end) and
+the sampled hypergraphs (SENSOR, SDHN only). The callbacks only assemble: an update, however
+long, cannot delay them. Version 1 (or the resumed version) is published at start.
+
+Every dropped message, step or rollout is counted per cause and logged once per cause; the counts,
+the transitions assembled and learned, and the executor's longest stall go to
+``<status dir>/trainer.status.json`` (``sdhn_sim.ros.status``) for the launcher's status line.
 
 Parameters (typed, with descriptors): env and algo (a name of the env / algorithm registry), seed
 (>= 0), run_dir ("" = runs/<env>__<algo>__<seed>__ros-<time>), rollout_steps (>= 2), config
@@ -18,8 +24,8 @@ plain functions below; the constructor only declares.
 from __future__ import annotations
 
 import array
+import collections
 import functools
-import queue
 import threading
 import time
 from collections.abc import Sequence
@@ -32,6 +38,7 @@ from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
 from rclpy.context import Context
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
+from rclpy.time import Time
 
 from sdhn_msgs.msg import (
     EpisodeSummary,
@@ -41,25 +48,30 @@ from sdhn_msgs.msg import (
     RobotObservation,
     TeamState,
 )
-from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
 from sdhn_sim.envs.registry import env_names, make_env
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros import cdr, topics
+from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP, STEP_DEPTH
 from sdhn_sim.ros.runner import ConfigError, run_node
+from sdhn_sim.ros.status import write_status
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, apply_dict, load_yaml, validate
 from sdhn_train.config import ConfigError as TrainConfigError
-from sdhn_train.env_features import resolve_features, wrap_features
 from sdhn_train.envinfo import EnvInfo
-from sdhn_train.learners.base import NonFiniteLossError
-from sdhn_train.runs import MetricsLog, episode_metrics
-from sdhn_train.stream_learner import HypergraphSample, StreamLearner
-from sdhn_train.transitions import AssembledRollout, TransitionAssembler
+from sdhn_train.learner_process import (
+    ROLLOUT_DROPPED,
+    HypergraphSample,
+    LearnerClient,
+    LearnerStartError,
+    LearnerUpdate,
+    WeightsBlob,
+)
+from sdhn_train.transitions import TransitionAssembler
 
-QUEUE_ROLLOUTS = 4  # rollouts waiting for the learner; beyond that the oldest is dropped
-HYPERGRAPHS_PER_UPDATE = 8
-STATUS_PERIOD_S = 5.0
+QUEUE_ROLLOUTS = 4  # rollouts waiting for the pipe (the learner's receiver drains it at once)
+STATUS_PERIOD_S = 2.0
+LAG_PERIOD_S = 0.1
+UNDECODABLE = "undecodable CDR"
 
 
 @dataclass(frozen=True)
@@ -140,26 +152,26 @@ def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path
     return cfg
 
 
-def open_learner(p: TrainerParams, cfg: Config) -> tuple[StreamLearner, BatchedEnv, Path | None]:
-    """(learner, env, the checkpoint resumed from or None) for the node's run_dir; a fresh run
-    writes its version-1 checkpoint. ConfigError for a run_dir that cannot be used."""
+def check_run_dir(p: TrainerParams) -> Path:
+    """The node's run_dir; ConfigError when it holds an earlier run's checkpoints and resume is
+    off (a fresh run would overwrite them)."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
     run_dir = Path(p.run_dir or f"runs/{p.env}__{p.algo}__{p.seed}__ros-{stamp}")
     if ckpt.latest_checkpoint(run_dir) is not None and not p.resume:
         raise ConfigError(f"run_dir: {run_dir} holds checkpoints of an earlier run; "
                           "allowed: resume:=true, or an empty or new run_dir")
-    env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
-    learner_env = wrap_features(env, resolve_features(cfg))  # the learner sees features
-    learner = StreamLearner(cfg, EnvInfo.of(learner_env), run_dir)
+    return run_dir
+
+
+def start_learner(p: TrainerParams, cfg: Config, run_dir: Path) -> LearnerClient:
+    """The learner process (``sdhn_train.learner_process``), started and holding its first
+    version (fresh: checkpointed; resume: loaded). ConfigError for a checkpoint it cannot load."""
     try:
-        resumed = learner.resume_latest() if p.resume else None
-    except (ckpt.CheckpointError, KeyError, ValueError, RuntimeError) as e:
-        raise ConfigError(f"resume: the newest checkpoint in {run_dir} cannot be loaded "
-                          f"({str(e)[:200]}); allowed: a run_dir with a valid checkpoint, "
-                          "or resume:=false with a new run_dir") from e
-    if resumed is None:
-        learner.save_checkpoint()
-    return learner, env, resumed
+        return LearnerClient(cfg.to_dict(), run_dir, p.resume)
+    except LearnerStartError as e:
+        if e.config:
+            raise ConfigError(str(e)) from e
+        raise
 
 
 class TrainerNode(Node):
@@ -168,185 +180,243 @@ class TrainerNode(Node):
         p = declare_parameters(self)
         check_params(p)
         cfg = build_config(p.env, p.algo, p.seed, p.rollout_steps, p.config)
-        self.learner, env, resumed = open_learner(p, cfg)
-        self.run_dir = self.learner.run_dir
+        self.run_dir = check_run_dir(p)
+        env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
         self.info = EnvInfo.of(env)  # raw sizes, as the messages carry them
         self.ns = p.team_ns
         n = self.info.num_robots
         self.assembler = TransitionAssembler(n, self.info.obs_size, self.info.state_size,
                                              self.info.num_actions,
                                              rollout_steps=cfg.ppo.rollout_len,
-                                             max_steps=env.max_steps)
-        self.dropped: dict[str, int] = {}
-        self._rollouts: queue.Queue[AssembledRollout] = queue.Queue(maxsize=QUEUE_ROLLOUTS)
-        self._stop = threading.Event()
-        self._episodes: list[EpisodeSummary] = []
-        self._episodes_lock = threading.Lock()
+                                             max_steps=env.max_steps,
+                                             # a message later than the queue depth is lost
+                                             # anyway; steps the sim 'stay'ed drop at once
+                                             settle_lag=STEP_DEPTH)
+        self.dropped: dict[str, int] = {}  # message- and rollout-level drops seen by the node
+        self.learner_dropped: dict[str, int] = {}  # reported by the learner process
+        self._logged_causes: set[str] = set()
+        self._episodes: list[dict[str, Any]] = []
         self._last_status = ""
+        self._lag_max = 0.0  # longest executor delay of the lag timer since the last status
+        self._lag_worst = 0.0
+        self._lag_due: float | None = None  # the first tick only starts the clock
+        # (version, update end, published) of the recent updates, for the status file
+        self.updates: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=200)
 
+        # The learner runs in its own process: nothing it does can hold this node's executor.
+        # Started before any topic exists: a checkpoint it cannot resume from is a config error.
+        self.learner = start_learner(p, cfg, self.run_dir)
         self.weights_pub = self.create_publisher(
             PolicyWeights, topics.absolute(self.ns, topics.WEIGHTS), LATCHED)
         self.hypergraph_pub = self.create_publisher(
             Hypergraph, topics.absolute(self.ns, topics.HYPERGRAPH), SENSOR)
+        self.version = self.learner.start_weights.version
+        self.transitions_learned = self.learner.start_transitions
+        self._obs_topics = [topics.absolute(self.ns, topics.robot_obs(i)) for i in range(n)]
+        self._action_topics = [topics.absolute(self.ns, topics.robot_action(i))
+                               for i in range(n)]
         for i in range(n):
-            self.create_subscription(RobotObservation,
-                                     topics.absolute(self.ns, topics.robot_obs(i)),
-                                     functools.partial(self.on_obs, i), STEP)
-            self.create_subscription(RobotAction,
-                                     topics.absolute(self.ns, topics.robot_action(i)),
-                                     functools.partial(self.on_action, i), STEP)
+            self.create_subscription(RobotObservation, self._obs_topics[i],
+                                     functools.partial(self.on_obs, i), STEP, raw=True)
+            self.create_subscription(RobotAction, self._action_topics[i],
+                                     functools.partial(self.on_action, i), STEP, raw=True)
         self.create_subscription(TeamState, topics.absolute(self.ns, topics.STATE), self.on_state,
-                                 STEP)
+                                 STEP, raw=True)
         self.create_subscription(EpisodeSummary, topics.absolute(self.ns, topics.EPISODE),
                                  self.on_episode, STEP)
-        self.create_timer(STATUS_PERIOD_S, self.log_status)
+        self.create_timer(LAG_PERIOD_S, self.on_lag_timer)
 
-        self.publish_weights()
-        self.worker = threading.Thread(target=self.learn_loop, name="learner", daemon=True)
-        self.worker.start()
-        how = f"resumed from {resumed.name}" if resumed else "fresh"
+        self.publish_weights(self.learner.start_weights, time.time())
+        self._stop = threading.Event()
+        self.learner.start(self.on_update, self.on_learner_error)
+        self.status_thread = threading.Thread(target=self.status_loop, name="status", daemon=True)
+        self.status_thread.start()
+        how = f"resumed from {self.learner.resumed}" if self.learner.resumed else "fresh"
         self.get_logger().info(
             f"ready: env={cfg.env.name} algo={cfg.algo.name} robots={n} "
-            f"rollout_steps={cfg.ppo.rollout_len} version={self.learner.version} ({how}) "
-            f"run_dir={self.run_dir}")
+            f"rollout_steps={cfg.ppo.rollout_len} version={self.version} ({how}) "
+            f"run_dir={self.run_dir} learner_pid={self.learner.process.pid}")
 
     # -- callbacks (executor thread): validate, hand to the assembler, queue rollouts --------
 
-    def _drop(self, kind: str | None, topic: str, detail: str) -> None:
-        if kind is None:
-            return
-        self.dropped[kind] = self.dropped.get(kind, 0) + 1
-        if self.dropped[kind] == 1:
-            self.get_logger().warning(
-                f"dropped a message on {topic}: {kind} ({detail}); counting, logged once per kind")
+    def _count(self, kind: str, detail: str, n: int = 1) -> None:
+        self.dropped[kind] = self.dropped.get(kind, 0) + n
+        self._log_once(kind, detail)
 
-    def on_obs(self, robot: int, m: RobotObservation) -> None:
-        topic = topics.absolute(self.ns, topics.robot_obs(robot))
-        if m.robot_id != robot:
-            self._drop("robot id differs from the topic's robot", topic, f"robot_id={m.robot_id}")
+    def _log_once(self, kind: str, detail: str) -> None:
+        if kind not in self._logged_causes:
+            self._logged_causes.add(kind)
+            self.get_logger().warning(
+                f"dropped: {kind} ({detail}); counting, logged once per cause")
+
+    def _drop(self, kind: str | None, topic: str, detail: str) -> None:
+        if kind is not None:
+            self._count(kind, f"on {topic}: {detail}")
+
+    # The step topics arrive as raw CDR (``raw=True``) and are read by ``sdhn_sim.ros.cdr``: no
+    # Python message objects per message (41 a step at N = 20), which kept the node behind the
+    # loop under load.
+
+    def on_obs(self, robot: int, data: bytes) -> None:
+        try:
+            m = cdr.read_observation(data)
+        except cdr.CdrError as e:
+            self._drop(UNDECODABLE, self._obs_topics[robot], str(e))
             return
-        obs = _floats(m.obs)
-        reason = self.assembler.add_obs(m.episode, m.step, m.robot_id, obs,
+        if m.robot_id != robot:
+            self._drop("robot id differs from the topic's robot", self._obs_topics[robot],
+                       f"robot_id={m.robot_id}")
+            return
+        reason = self.assembler.add_obs(m.episode, m.step, m.robot_id, m.obs,
                                         num_robots=m.num_robots, terminated=m.terminated,
                                         truncated=m.truncated)
-        self._drop(reason, topic, f"episode {m.episode} step {m.step} len {obs.size}")
+        if reason is not None:
+            self._drop(reason, self._obs_topics[robot],
+                       f"episode {m.episode} step {m.step} len {m.obs.size}")
         self._queue_ready()
 
-    def on_action(self, robot: int, m: RobotAction) -> None:
-        topic = topics.absolute(self.ns, topics.robot_action(robot))
+    def on_action(self, robot: int, data: bytes) -> None:
+        try:
+            m = cdr.read_action(data)
+        except cdr.CdrError as e:
+            self._drop(UNDECODABLE, self._action_topics[robot], str(e))
+            return
         if m.robot_id != robot:
-            self._drop("robot id differs from the topic's robot", topic, f"robot_id={m.robot_id}")
+            self._drop("robot id differs from the topic's robot", self._action_topics[robot],
+                       f"robot_id={m.robot_id}")
             return
         reason = self.assembler.add_action(m.episode, m.step, m.robot_id, m.action,
                                            log_prob=m.log_prob, version=m.policy_version)
-        self._drop(reason, topic, f"episode {m.episode} step {m.step} action {m.action} "
-                   f"log_prob {m.log_prob}")
+        if reason is not None:
+            self._drop(reason, self._action_topics[robot], f"episode {m.episode} step "
+                       f"{m.step} action {m.action} log_prob {m.log_prob}")
         self._queue_ready()
 
-    def on_state(self, m: TeamState) -> None:
-        state = _floats(m.state)
-        reason = self.assembler.add_state(m.episode, m.step, state, num_robots=m.num_robots,
+    def on_state(self, data: bytes) -> None:
+        try:
+            m = cdr.read_state(data)
+        except cdr.CdrError as e:
+            self._drop(UNDECODABLE, topics.absolute(self.ns, topics.STATE), str(e))
+            return
+        reason = self.assembler.add_state(m.episode, m.step, m.state, num_robots=m.num_robots,
                                           team_reward=m.team_reward, terminated=m.terminated,
-                                          truncated=m.truncated)
-        self._drop(reason, topics.absolute(self.ns, topics.STATE),
-                   f"episode {m.episode} step {m.step} "
-                   f"len {state.size}")
+                                          truncated=m.truncated, missed=m.missed_actions)
+        if reason is not None:
+            self._drop(reason, topics.absolute(self.ns, topics.STATE),
+                       f"episode {m.episode} step {m.step} len {m.state.size}")
         self._queue_ready()
 
     def on_episode(self, m: EpisodeSummary) -> None:
-        with self._episodes_lock:
-            self._episodes.append(m)
+        self._episodes.append({
+            "episode_return": float(m.episode_return), "length": int(m.length),
+            "makespan": int(m.makespan) if m.completed else None,
+            "completed": bool(m.completed), "collisions": int(m.collisions),
+            "formation_error": float(m.formation_error)})
+
+    def on_lag_timer(self) -> None:
+        """How late the executor runs a 10 Hz timer: the longest stall of the callbacks, which
+        (times the message rate) is the queue depth the observer subscriptions need."""
+        now = time.monotonic()
+        if self._lag_due is not None:
+            self._lag_max = max(self._lag_max, now - self._lag_due)
+        self._lag_due = now + LAG_PERIOD_S
 
     def _queue_ready(self) -> None:
+        for kind, count in self.assembler.stats.dropped.items():
+            if kind not in self._logged_causes:  # step-level drops found by the assembler
+                self._log_once(kind, f"{count} so far")
         while (ready := self.assembler.pop_rollout()) is not None:
-            try:
-                self._rollouts.put_nowait(ready)
-            except queue.Full:
-                self._rollouts.get_nowait()
-                self._rollouts.put_nowait(ready)
-                self._drop("rollout dropped (learner busy)", "learner",
-                           f"{QUEUE_ROLLOUTS} rollouts were waiting")
+            if self.learner.waiting >= QUEUE_ROLLOUTS:
+                self._count(ROLLOUT_DROPPED, f"{QUEUE_ROLLOUTS} rollouts waiting to be sent")
+                continue
+            episodes, self._episodes = self._episodes, []
+            self.learner.submit(ready, episodes)  # queues only; a sender thread writes the pipe
 
-    def log_status(self) -> None:
+    # -- status (own thread): a file for the launcher, a log line when it changes ------------
+
+    def status(self) -> dict[str, Any]:
         st = self.assembler.stats
-        drops = {**self.dropped, **st.dropped}
-        line = (f"status: version={self.learner.version} transitions={st.transitions} "
-                f"rollouts={st.rollouts} gaps={st.gaps} pending={self.assembler.pending_records} "
-                f"dropped={drops}")
+        drops: dict[str, int] = {}
+        for source in (dict(self.dropped), dict(st.dropped), dict(self.learner_dropped)):
+            for kind, count in source.items():
+                drops[kind] = drops.get(kind, 0) + count
+        lag, self._lag_max = self._lag_max, 0.0
+        self._lag_worst = max(self._lag_worst, lag)
+        return {"version": self.version, "transitions": st.transitions,
+                "rollouts": st.rollouts, "gaps": st.gaps,
+                "transitions_learned": self.transitions_learned,
+                "pending": self.assembler.pending_records, "dropped": drops,
+                "executor_lag_ms": round(lag * 1e3, 1),
+                "executor_lag_max_ms": round(self._lag_worst * 1e3, 1),
+                "weights_published": [[v, round(t_end, 4), round(t_pub, 4)]
+                                      for v, t_end, t_pub in list(self.updates)]}
+
+    def log_status(self) -> dict[str, Any]:
+        s = self.status()
+        write_status("trainer", s)
+        line = (f"status: version={s['version']} transitions={s['transitions']} "
+                f"learned={s['transitions_learned']} rollouts={s['rollouts']} gaps={s['gaps']} "
+                f"pending={s['pending']} dropped={s['dropped']}")
         if line != self._last_status:
             self._last_status = line
             self.get_logger().info(line)
+        return s
 
-    # -- learning (worker thread) -------------------------------------------------------------
+    def status_loop(self) -> None:
+        while not self._stop.wait(STATUS_PERIOD_S):
+            self.log_status()
 
-    def publish_weights(self) -> tuple[int, float]:
-        """Publish the current version; returns (payload bytes, seconds to build + publish)."""
+    # -- learner results (the learner client's receiver thread): publish and log -------------
+
+    def publish_weights(self, blob: WeightsBlob, end_time: float) -> float:
+        """Publish a version; its stamp is when the update that made it ended. Returns the
+        seconds to build + publish."""
         t0 = time.perf_counter()
-        blob = self.learner.weights()
         msg = PolicyWeights(version=blob.version, format=blob.format, sha256=blob.sha256)
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.payload = blob.payload
+        msg.header.stamp = Time(seconds=end_time).to_msg()
+        msg.payload = blob.payload  # bytes: ~1000x faster than a NumPy array for uint8[]
         self.weights_pub.publish(msg)
-        return len(blob.payload), time.perf_counter() - t0
+        return time.perf_counter() - t0
 
-    def learn_loop(self) -> None:
-        log = MetricsLog(self.run_dir, self.learner.cfg.log.tensorboard)
-        try:
-            while not self._stop.is_set():
-                try:
-                    assembled = self._rollouts.get(timeout=0.1)
-                except queue.Empty:
-                    continue
-                try:
-                    result = self.learner.train(assembled, HYPERGRAPHS_PER_UPDATE)
-                except NonFiniteLossError as e:
-                    self.get_logger().error(f"{e}; training stopped at version "
-                                            f"{self.learner.version}, last checkpoint kept")
-                    return
-                size, publish_s = self.publish_weights()
-                for g in result.hypergraphs:
-                    self.publish_hypergraph(g, result.version)
-                with self._episodes_lock:
-                    episodes, self._episodes = self._episodes, []
-                metrics = dict(result.metrics)
-                metrics.update(episode_metrics("charts", [_stats(e) for e in episodes]))
-                metrics["perf/update_s"] = result.update_s
-                metrics["perf/checkpoint_s"] = result.checkpoint_s
-                metrics["perf/weights_publish_s"] = publish_s
-                log.write(self.learner.transitions, metrics)
-                self.get_logger().info(
-                    f"update: version={result.version} transitions={self.learner.transitions} "
-                    f"update_s={result.update_s:.3f} checkpoint_s={result.checkpoint_s:.3f} "
-                    f"weights_bytes={size} publish_ms={publish_s * 1e3:.1f} "
-                    f"policy_lag={metrics['charts/policy_lag']:.2f} "
-                    f"value_loss={metrics.get('losses/value_loss', float('nan')):.4g}")
-        finally:
-            log.close()
+    def on_update(self, u: LearnerUpdate) -> None:
+        publish_s = self.publish_weights(u.weights, u.end_time)
+        self.updates.append((u.version, u.end_time, time.time()))
+        self.version, self.transitions_learned = u.version, u.transitions
+        for kind, count in u.dropped.items():
+            if count > self.learner_dropped.get(kind, 0):
+                self.learner_dropped[kind] = count
+                self._log_once(kind, f"in the learner process: {count} so far")
+        for graph in u.hypergraphs:
+            self.publish_hypergraph(graph, u.version)
+        self.get_logger().info(
+            f"update: version={u.version} transitions={u.transitions} "
+            f"update_s={u.update_s:.3f} checkpoint_s={u.checkpoint_s:.3f} "
+            f"weights_bytes={len(u.weights.payload)} publish_ms={publish_s * 1e3:.1f} "
+            f"handover_ms={(time.time() - u.end_time) * 1e3:.1f} "
+            f"policy_lag={u.metrics.get('charts/policy_lag', float('nan')):.2f} "
+            f"value_loss={u.metrics.get('losses/value_loss', float('nan')):.4g}")
 
-    def publish_hypergraph(self, g: HypergraphSample, version: int) -> None:
-        n, m = g.p_h.shape
-        msg = Hypergraph(episode=g.episode, step=g.step, num_robots=n, num_hyperedges=m,
-                         skewness=g.skewness, policy_version=version)
+    def on_learner_error(self, message: str) -> None:
+        self.get_logger().error(f"{message}; learning stopped at version {self.version}")
+
+    def publish_hypergraph(self, graph: HypergraphSample, version: int) -> None:
+        episode, step, skewness, p_h, incidence = graph
+        n, m = p_h.shape
+        msg = Hypergraph(episode=episode, step=step, num_robots=n, num_hyperedges=m,
+                         skewness=skewness, policy_version=version)
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.p_h = array.array("f", np.ascontiguousarray(g.p_h, np.float32).tobytes())
-        msg.incidence = g.incidence.astype(np.uint8).tobytes()
+        msg.p_h = array.array("f", np.ascontiguousarray(p_h, np.float32).tobytes())
+        msg.incidence = incidence.astype(np.uint8).tobytes()
         self.hypergraph_pub.publish(msg)
 
     def stop(self) -> None:
+        """After the executor stopped: stop the learner, settle every pending step (so the last
+        status accounts for each), write the last status."""
         self._stop.set()
-        self.worker.join(timeout=4.0)
+        self.learner.stop()
+        self.status_thread.join(timeout=2.0)
+        self.assembler.flush()
         self.log_status()
-
-
-def _floats(values: Any) -> np.ndarray:
-    """A float32[] field (array.array) as a NumPy view, without a per-element copy."""
-    return np.frombuffer(values, dtype=np.float32) if len(values) else np.zeros(0, np.float32)
-
-
-def _stats(m: EpisodeSummary) -> EpisodeStats:
-    return EpisodeStats(0, float(m.episode_return), int(m.length),
-                        int(m.makespan) if m.completed else None, bool(m.completed),
-                        int(m.collisions), float(m.formation_error))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

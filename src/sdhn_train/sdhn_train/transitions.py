@@ -15,7 +15,13 @@ state with terminated/truncated set); nobody needs to answer it.
 
 Transitions leave in (episode, step) order. A record that is still incomplete when ``settle_lag``
 newer records have appeared (a robot's action never came: the simulator made it 'stay'; the
-trainer started mid-step) is dropped and counted; the stream then has a *gap*: the transition
+trainer started mid-step) is dropped and counted; so is a step of which nothing ever arrived,
+once a later step of the same episode is finished. Every step the simulator made after the
+trainer's first is thus a transition, a counted step drop (``MISSED_ACTION``,
+``INCOMPLETE_STEP``, ``STEP_NEVER_SEEN``), a terminal step, or still pending (``flush``
+settles those at the end). A step the simulator took with a robot's 'stay' (its TeamState's
+``missed_actions`` says so) is dropped at once as ``MISSED_ACTION``, never learned from.
+The stream then has a *gap*: the transition
 before it is marked truncated (the learner bootstraps from the value of the state after it, as
 for a step limit) and the next segment starts with a hidden-state reset. The actors' real GRU
 state is not zero there, so the first few re-computed log-probs after a gap differ from the
@@ -60,6 +66,8 @@ DUPLICATE_STATE = "duplicate state"
 ACTION_RANGE = "action out of range"
 BAD_LOG_PROB = "log_prob not finite or > 0"
 INCOMPLETE_STEP = "incomplete step (missing obs, action or state)"
+STEP_NEVER_SEEN = "step never seen (none of its messages arrived)"
+MISSED_ACTION = "step with a missed action (the simulator made a robot 'stay')"
 
 
 @dataclass
@@ -77,6 +85,7 @@ class _Record:
     team_reward: float = 0.0
     terminated: bool = False
     truncated: bool = False
+    missed: bool = False  # the simulator stepped without a robot's action: never complete
 
     @property
     def observed(self) -> bool:
@@ -154,6 +163,7 @@ class TransitionAssembler:
         self._segment_obs: list[npt.NDArray[np.float32]] = []  # this episode's steps so far
         self._segment_state: list[npt.NDArray[np.float32]] = []
         self._ready: list[AssembledRollout] = []
+        self._flushing = False
 
     # -- input ------------------------------------------------------------------------------
 
@@ -201,7 +211,10 @@ class TransitionAssembler:
 
     def add_state(self, episode: int, step: int, state: npt.NDArray[np.float32], *,
                   num_robots: int, team_reward: float, terminated: bool,
-                  truncated: bool) -> str | None:
+                  truncated: bool, missed: int = 0) -> str | None:
+        """``missed``: the state's ``missed_actions``, robots the simulator made 'stay' in the
+        step before; that step can never be complete, and is dropped as soon as this is known
+        (``MISSED_ACTION``) instead of after ``settle_lag`` more records."""
         if num_robots != self.n:
             return WRONG_TEAM_SIZE
         if state.shape != (self.s,):
@@ -215,6 +228,10 @@ class TransitionAssembler:
             return DUPLICATE_STATE
         rec.state = state
         rec.team_reward, rec.terminated, rec.truncated = team_reward, terminated, truncated
+        if missed > 0 and step > 0:
+            before, _ = self._record((episode, step - 1))
+            if before is not None:
+                before.missed = True
         self._advance()
         return None
 
@@ -225,6 +242,15 @@ class TransitionAssembler:
         self._cursor = None
         self._segment_obs, self._segment_state = [], []
         self.stats.gaps += 1
+
+    def flush(self) -> None:
+        """The stream ended (the trainer stops): settle every pending record now, so each step
+        is a transition or a counted drop, none left uncounted."""
+        self._flushing = True
+        try:
+            self._advance()
+        finally:
+            self._flushing = False
 
     # -- output -----------------------------------------------------------------------------
 
@@ -258,7 +284,7 @@ class TransitionAssembler:
 
     def _settled(self, rec: _Record) -> bool:
         """No more messages are expected for this record: ``settle_lag`` newer ones exist."""
-        return self._counter - rec.created >= self.settle_lag
+        return self._flushing or self._counter - rec.created >= self.settle_lag
 
     def _advance(self) -> None:
         """Emit every transition that is ready, in key order; drop records that never complete."""
@@ -272,11 +298,14 @@ class TransitionAssembler:
                 self._finish(key, gap=False, episode_end=True)
                 continue
             nxt = self._records.get((episode, step + 1))
-            if rec.complete and nxt is not None and nxt.observed:
+            # A step the simulator took with a 'stay' for a missing robot is never learned from,
+            # even if that robot's late action reaches us: it is not what the world executed.
+            if not rec.missed and rec.complete and nxt is not None and nxt.observed:
                 self._emit(key, rec, nxt)
                 continue
-            if self._settled(rec):
-                self.stats.dropped[INCOMPLETE_STEP] = self.stats.dropped.get(INCOMPLETE_STEP, 0) + 1
+            if rec.missed or self._settled(rec):
+                cause = MISSED_ACTION if rec.missed else INCOMPLETE_STEP
+                self.stats.dropped[cause] = self.stats.dropped.get(cause, 0) + 1
                 self._finish(key, gap=True, episode_end=False)
                 continue
             break
@@ -291,7 +320,15 @@ class TransitionAssembler:
             if not self._buffer:
                 self._segment_obs, self._segment_state = [], []
 
+    def _count_unseen(self, key: Key) -> None:
+        """Steps of this episode between the cursor and ``key`` that no message ever reached."""
+        cur = self._cursor
+        if cur is not None and key[0] == cur[0] and key[1] > cur[1]:
+            d = self.stats.dropped
+            d[STEP_NEVER_SEEN] = d.get(STEP_NEVER_SEEN, 0) + key[1] - cur[1]
+
     def _finish(self, key: Key, gap: bool, episode_end: bool) -> None:
+        self._count_unseen(key)
         del self._records[key]
         self._cursor = (key[0], key[1] + 1)
         if gap:
@@ -311,6 +348,7 @@ class TransitionAssembler:
             float(nxt.team_reward), bool(nxt.terminated),
             bool(nxt.truncated and not nxt.terminated), nxt.obs.copy(), nxt.state.copy()))
         self._last = self._buffer[-1]
+        self._count_unseen(key)
         del self._records[key]
         self._cursor = (key[0], key[1] + 1)
         self.stats.transitions += 1

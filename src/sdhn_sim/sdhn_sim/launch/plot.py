@@ -1,5 +1,6 @@
-"""Plot a launched run: per-episode return and makespan from ``<run_dir>/episodes.csv`` (written by
-the launcher), next to a training curve when given: the per-episode returns of a launcher run in
+"""Plot a launched run: per-episode makespan (NC when not completed) and success first, return
+second under the reward the simulator named, from ``<run_dir>/episodes.csv`` (written by the
+launcher), next to a training curve when given: the per-episode returns of a launcher run in
 train mode (its ``episodes.csv``), or the ``metrics.csv`` of an in-process training run.
 
     python -m sdhn_sim.launch.plot RUN_DIR [--train-run TRAIN_RUN_DIR] [--out PNG]
@@ -9,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import sys
 from pathlib import Path
 
@@ -16,6 +18,19 @@ from pathlib import Path
 def read_episodes(run_dir: Path) -> list[dict[str, str]]:
     path = run_dir / "episodes.csv"
     return list(csv.DictReader(path.read_text().splitlines())) if path.exists() else []
+
+
+def reward_name(run_dir: Path) -> str:
+    """The reward the simulator paid (its ``started`` event), or ``?`` if it did not say."""
+    path = run_dir / "status" / "sim-events.jsonl"
+    for line in path.read_text().splitlines() if path.exists() else []:
+        try:
+            event = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(event, dict) and event.get("event") == "started":
+            return str(event.get("reward", "?"))
+    return "?"
 
 
 def read_train_curve(train_run: Path,
@@ -47,20 +62,22 @@ def plot_run(run_dir: Path, train_run: Path | None = None, out: Path | None = No
     panels = 3 if curve else 2
     fig, axes = plt.subplots(1, panels, figsize=(4.2 * panels, 3.4))
     ks = [int(e["episode"]) for e in episodes]
-    axes[0].bar(ks, [float(e["return"]) for e in episodes], color="tab:blue")
-    axes[0].set(title="deployed: episode return", xlabel="episode", ylabel="team return")
     lengths = [int(e["length"]) for e in episodes]
     done = [e["makespan"] != "NC" for e in episodes]
     colors = ["tab:green" if d else "tab:gray" for d in done]
-    axes[1].bar(ks, lengths, color=colors)
+    axes[0].bar(ks, lengths, color=colors)
     for k, length, d in zip(ks, lengths, done, strict=True):
         if not d:
-            axes[1].text(k, length, "NC", ha="center", va="bottom", fontsize=8)
-    axes[1].set(title="deployed: makespan (grey = NC, length shown)", xlabel="episode",
-                ylabel="steps")
+            axes[0].text(k, length, "NC", ha="center", va="bottom", fontsize=8)
+    axes[0].set(title=f"deployed: makespan, success {sum(done)}/{len(done)} (grey = NC)",
+                xlabel="episode", ylabel="steps")
+    axes[1].bar(ks, [float(e["return"]) for e in episodes], color="tab:blue")
+    axes[1].set(title=f"deployed: return ({reward_name(run_dir)} reward)", xlabel="episode",
+                ylabel="team return")
     if curve:
         axes[2].plot([s for s, _ in curve], [v for _, v in curve], marker="o")
-        axes[2].set(title="training: episode return", xlabel="team env-steps",
+        reward = reward_name(train_run) if train_run is not None else "?"
+        axes[2].set(title=f"training: episode return ({reward} reward)", xlabel="team env-steps",
                     ylabel="team return")
     fig.tight_layout()
     out = out or run_dir / "episodes.png"

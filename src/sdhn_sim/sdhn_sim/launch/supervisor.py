@@ -54,7 +54,7 @@ from sdhn_sim.envs.registry import RWARE_TASKS, env_names
 from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.overrides import OverrideError, set_field
 from sdhn_sim.ros import topics
-from sdhn_sim.ros.status import READY_ENV, EventReader
+from sdhn_sim.ros.status import READY_ENV, EventReader, read_statuses
 
 MODES = ("deploy", "train")
 FASTDDS_PROFILE = Path(__file__).resolve().parent.parent / "data" / "fastdds.xml"
@@ -391,6 +391,22 @@ def episode_row(event: dict[str, Any], wall_s: float) -> dict[str, Any]:
             "instance_id": int(event.get("instance_id", -1)), "wall_s": f"{wall_s:.2f}"}
 
 
+def node_status_parts(statuses: dict[str, dict[str, Any]]) -> list[str]:
+    """What the nodes' status files add to the status line: the trainer's transitions, and every
+    node's dropped data per cause (``sdhn_sim.ros.status``)."""
+    parts = []
+    trainer = statuses.get("trainer")
+    if trainer is not None:
+        parts.append(f"trainer v{trainer.get('version')} {trainer.get('transitions', 0)} "
+                     f"transitions ({trainer.get('transitions_learned', 0)} learned)")
+    for name, st in statuses.items():
+        drops = st.get("dropped") or {}
+        if drops:
+            parts.append(f"{name} dropped " + ", ".join(f"{k}: {v}" for k, v in
+                                                        sorted(drops.items())))
+    return parts
+
+
 def describe_exit(code: int | None) -> str:
     if code is None:
         return "running"
@@ -442,6 +458,7 @@ class Launcher:
             outcome = "completed" if last["completed"] else "not completed"
             parts += [f"last {outcome}, makespan {last['makespan']}, return "
                       f"{float(last['return']):.1f}", f"weights v{last['policy_version']}"]
+        parts += node_status_parts(read_statuses(status_dir(self.run_dir)))
         return " | ".join(parts)
 
     def write_config(self) -> None:
@@ -498,11 +515,16 @@ class Launcher:
                                       if c.proc is not None))
         next_status = time.monotonic() + self.cfg.status_interval
         finished = False
+        all_ready_said = False
         while not self.stop_requested and not finished:
             time.sleep(0.1)
             self.read_events()
             finished = self.check_children()
-            if time.monotonic() >= next_status:
+            if not all_ready_said and all(c.ready for c in self.children):
+                # once, at the moment it happens: a short run may end before the next line
+                all_ready_said = True
+                self.say(self.status())
+            elif time.monotonic() >= next_status:
                 next_status += self.cfg.status_interval
                 if self._tty:
                     self.out.write("\r\033[K" + self.status())

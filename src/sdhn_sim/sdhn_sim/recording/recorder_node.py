@@ -2,7 +2,10 @@
 
 Messages are taken as raw CDR (subscriptions with ``raw=True``, no deserialisation) and written
 with ``ros2msg`` schemas by :class:`sdhn_sim.recording.writer.McapRosWriter`; log time =
-receive time.
+receive time. The recorder must not slow the loop it records: it is its own process with its own
+executor, and its callbacks only append (topic, type, bytes, time) to a queue; a writer thread
+takes the queue in batches every ``WRITE_PERIOD_S`` and does the MCAP work (records, chunk
+compression) off the executor thread, so a chunk being compressed never delays a callback.
 
 Which topics, with which QoS:
 - The contract's topics are subscribed from the start, with their contract profile, so nothing
@@ -32,6 +35,7 @@ recording.
 
 from __future__ import annotations
 
+import collections
 import functools
 import queue
 import threading
@@ -56,6 +60,7 @@ from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5
+WRITE_PERIOD_S = 0.05  # the writer thread takes the queued messages this often, as one batch
 VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
 STATUS_PERIOD_S = 5.0
 CONTRACT_TOPICS = {  # relative to team_ns: (type, profile)
@@ -171,6 +176,15 @@ class RecorderNode(Node):
         self._t0 = time.monotonic()
         self._bytes = 0
         self._last_status = ""
+        self._pending: collections.deque[tuple[str, str, bytes, int]] = collections.deque()
+        self._stop_writing = threading.Event()
+        self.batches = 0
+        self.largest_batch = 0
+        self.write_error: str | None = None
+        self.not_written = 0
+        self._writer_thread = threading.Thread(target=self.write_loop, name="mcap-writer",
+                                               daemon=True)
+        self._writer_thread.start()
         for rel, (type_name, profile) in CONTRACT_TOPICS.items():
             self.record(topics.absolute(self.ns, rel), type_name, profile)
         self.discover()
@@ -217,12 +231,39 @@ class RecorderNode(Node):
     def on_message(self, topic: str, type_name: str, data: bytes) -> None:
         # time.time_ns() is the ROS system clock without rclpy's ~17 us per call (no sim time here)
         now = time.time_ns()
-        with self.lock:
-            self.writer.write_serialized(topic, type_name, data, now)
+        if self.write_error is not None:
+            self.not_written += 1
+            return
+        self._pending.append((topic, type_name, data, now))  # the writer thread writes it
         if self.viz is not None and (kind := self._viz_kinds.get(topic)) is not None:
             self.viz.offer(kind, type_name, data, now)
         self.counts[topic] += 1
         self._bytes += len(data)
+
+    def write_loop(self) -> None:
+        """The writer thread: every WRITE_PERIOD_S, write what was queued, in arrival order. A
+        write that fails (disk full, file gone) stops the recording: logged, and every message
+        after it counted as not written, instead of a queue growing without end."""
+        try:
+            while not self._stop_writing.wait(WRITE_PERIOD_S):
+                self.write_pending()
+            self.write_pending()
+        except Exception as e:
+            self.write_error = f"{type(e).__name__}: {e}"
+            self.get_logger().error(f"recording stopped, writing {self.path} failed: "
+                                    f"{self.write_error}; later messages are counted, not "
+                                    "written")
+
+    def write_pending(self) -> None:
+        n = len(self._pending)  # only this thread pops; callbacks only append
+        if not n:
+            return
+        with self.lock:
+            for _ in range(n):
+                topic, type_name, data, now = self._pending.popleft()
+                self.writer.write_serialized(topic, type_name, data, now)
+        self.batches += 1
+        self.largest_batch = max(self.largest_batch, n)
 
     def log_status(self) -> None:
         elapsed = max(time.monotonic() - self._t0, 1e-9)
@@ -235,13 +276,23 @@ class RecorderNode(Node):
             self.get_logger().info(line)
 
     def stop(self) -> None:
+        self._stop_writing.set()
+        self._writer_thread.join()
         if self.viz is not None:
             self.viz.stop()
         with self.lock:
-            self.writer.close()
+            try:
+                self.writer.close()
+            except OSError as e:
+                self.write_error = self.write_error or f"{type(e).__name__}: {e}"
+        if self.write_error is not None:
+            self.get_logger().error(f"recording incomplete ({self.write_error}); "
+                                    f"{len(self._pending) + self.not_written} messages not "
+                                    "written")
         per_topic = ", ".join(f"{t}={c}" for t, c in sorted(self.counts.items()) if c)
         self.get_logger().info(f"closed {self.path}: {self.writer.messages_written} messages "
-                               f"({self._bytes / 1e6:.2f} MB); {per_topic}")
+                               f"({self._bytes / 1e6:.2f} MB) in {self.batches} batches "
+                               f"(largest {self.largest_batch}); {per_topic}")
         if self.viz is not None:
             self.get_logger().info(self.viz.summary())
 

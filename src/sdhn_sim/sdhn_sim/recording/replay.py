@@ -54,7 +54,7 @@ from sdhn_sim.recording.reader import (
 )
 
 MIN_RATE, MAX_RATE = 0.001, 1000.0
-ACK_WINDOW = 48  # reliable samples in flight per topic (< the STEP history depth, 64)
+
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -302,6 +302,7 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
     node = rclpy.create_node("replay", context=context)
     pubs = {}
     reliable: set[str] = set()
+    window: dict[str, int] = {}
     messages = [m for m in rec.messages if m.encoding == "cdr"]
     skipped: Counter[str] = Counter()
     try:
@@ -317,6 +318,9 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
                 pubs[m.topic] = node.create_publisher(cls, m.topic, profile)
                 if profile is not SENSOR:
                     reliable.add(m.topic)
+                    # samples in flight before waiting: below the history depth, so an
+                    # unacknowledged sample is never overwritten (1 for the latched weights)
+                    window[m.topic] = max(1, profile.depth * 3 // 4)
             elif m.topic in skipped:
                 skipped[m.topic] += 1
         for topic, n in sorted(skipped.items()):
@@ -338,7 +342,7 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
             if delay > 0:
                 time.sleep(delay)
             pub = pubs[m.topic]
-            if m.topic in reliable and in_flight[m.topic] >= ACK_WINDOW:
+            if m.topic in reliable and in_flight[m.topic] >= window[m.topic]:
                 # A topic that already timed out is not waited on for long again: its
                 # subscriber is stalled, and the replay keeps its pace for the others.
                 if not pub.wait_for_all_acked(stalled if m.topic in lost else timeout):

@@ -12,6 +12,7 @@ is written (when asked for).
 
 from __future__ import annotations
 
+import gc
 import signal
 import sys
 import threading
@@ -62,6 +63,11 @@ def run_node(
         except ConfigError as error:
             print(f"{prog}: error: {error}", file=sys.stderr)
             return 2
+        # Everything built so far (imports: rclpy, NumPy, torch in the trainer) lives as long as
+        # the process: keep it out of the garbage collector's full passes, which otherwise walk
+        # it all and stall the callbacks (hundreds of ms with torch imported, on a busy machine).
+        gc.collect()
+        gc.freeze()
         executor = EventsExecutor(context=context)
         executor.add_node(node)
         write_ready(node.get_name(), node.get_namespace())

@@ -9,6 +9,9 @@
   "steps_per_s", "missed"}`` every few seconds, ``{"event": "episode", ...}`` with every field of
   :class:`sdhn_sim.lockstep.EpisodeResult` per finished episode, ``{"event": "done", ...}``.
   :class:`EventReader` reads what was appended since its last call.
+- Status file: a node with counters the launcher shows (the trainer: transitions, drops per
+  cause) rewrites ``<name>.status.json`` next to its ready file (:func:`write_status`, atomic);
+  the launcher reads every ``*.status.json`` of the status directory (:func:`read_statuses`).
 """
 
 from __future__ import annotations
@@ -34,6 +37,36 @@ def write_ready(node_name: str, namespace: str) -> Path | None:
                                "time": time.time()}) + "\n")
     tmp.replace(path)
     return path
+
+
+STATUS_SUFFIX = ".status.json"
+
+
+def write_status(node_name: str, fields: dict[str, Any]) -> Path | None:
+    """Rewrite ``<status dir>/<node_name>.status.json`` (the directory of ``$SDHN_READY_FILE``)
+    atomically; None when the node runs without a supervisor."""
+    target = os.environ.get(READY_ENV, "")
+    if not target:
+        return None
+    path = Path(target).with_name(node_name + STATUS_SUFFIX)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps({"node": node_name, "time": time.time(), **fields}) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def read_statuses(status_dir: Path) -> dict[str, dict[str, Any]]:
+    """Every node's last status, by node name (unreadable or half-written files are skipped)."""
+    out: dict[str, dict[str, Any]] = {}
+    for path in sorted(status_dir.glob("*" + STATUS_SUFFIX)):
+        try:
+            obj = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(obj, dict):
+            out[path.name.removesuffix(STATUS_SUFFIX)] = obj
+    return out
 
 
 class EventWriter:

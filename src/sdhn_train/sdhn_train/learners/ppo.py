@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TypeVar
 
@@ -22,6 +23,7 @@ from torch import Tensor, nn
 from sdhn_policy.actor_torch import Actor
 from sdhn_policy.weights import ActorWeights
 from sdhn_train import checkpoint as ckpt
+from sdhn_train.fused_gru import use_fused_gru
 from sdhn_train.learners.base import (
     F32,
     Arrays,
@@ -52,6 +54,11 @@ class PPOConfig:
     entropy_coef: float = opt(0.01, "entropy bonus weight")
     max_grad_norm: float = opt(10.0, "gradient-norm clip for actor and critic")
     normalize_advantages: bool = opt(True, "standardise advantages per minibatch")
+    concurrent_actor_critic: bool = opt(
+        False, "run each minibatch's actor half on a second thread beside the critic's (same "
+               "arithmetic; 2 cores, joins twice per minibatch, no per-op barrier)")
+    fused_gru: bool = opt(True, "re-run stored sequences with the fused GRU (sdhn_train."
+                                "fused_gru: nn.GRU's arithmetic, faster); false = nn.GRU")
     target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
                                          "null = algorithm default (sdhn 0.01, mappo 1 = none)")
     reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
@@ -152,6 +159,8 @@ class PPOLearner:
         if cfg.lr is None or cfg.critic_lr is None or cfg.target_tau is None:
             raise ConfigError("PPOConfig must be resolved (resolve_ppo) before use")
         self._actor, self.critic, self.cfg = actor, critic, cfg
+        use_fused_gru(actor, cfg.fused_gru)
+        use_fused_gru(critic, cfg.fused_gru)
         self.target_tau = cfg.target_tau
         self.target_critic = make_target(critic)
         self.actor_opt = torch.optim.Adam(actor.parameters(), lr=cfg.lr, eps=1e-5)
@@ -160,6 +169,7 @@ class PPOLearner:
         self.num_updates = 0
         self._next_critic_hidden: F32 | None = None  # critic_h0 for the next rollout
         self.timings = {"critic": 0.0, "actor_update": 0.0}  # wall seconds (benchmark shares)
+        self._executor: ThreadPoolExecutor | None = None  # ppo.concurrent_actor_critic
 
     @property
     def actor(self) -> Actor:
@@ -247,6 +257,90 @@ class PPOLearner:
         return self.actor.forward_sequence(obs.reshape(t, b * n, -1), h0, resets).reshape(
             t, b, n, -1)
 
+    def _actor_loss(self, r: dict[str, Tensor], envs: Tensor,
+                    adv: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+        t0 = time.perf_counter()
+        cfg = self.cfg
+        logits = self._actor_logits(r, envs)
+        logp_all = torch.log_softmax(logits, dim=-1)
+        logp = logp_all.gather(-1, r["actions"][:, envs, :, None]).squeeze(-1)
+        entropy = -(logp_all.exp() * logp_all).sum(-1).mean()
+        mb_adv = adv[:, envs]
+        if cfg.normalize_advantages and mb_adv.numel() > 1:
+            mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
+        pg_loss, approx_kl, clipfrac = clipped_policy_loss(
+            logp, r["logp_old"][:, envs], mb_adv, cfg.clip)
+        actor_loss = pg_loss - cfg.entropy_coef * entropy
+        self.timings["actor_update"] += time.perf_counter() - t0
+        return actor_loss, {"losses/policy_loss": pg_loss, "losses/entropy": entropy,
+                            "losses/approx_kl": approx_kl, "losses/clipfrac": clipfrac}
+
+    def _critic_loss(self, r: dict[str, Tensor], envs: Tensor, targets: Tensor,
+                     h0: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+        t0 = time.perf_counter()
+        out = self.critic.forward_sequence(r["obs"][:, envs], r["state"][:, envs],
+                                           h0[:, envs], r["resets"][:, envs])
+        td_loss = ((out.values - targets[:, envs]) ** 2).mean()  # eq. loss
+        critic_loss = td_loss + out.aux_loss  # eq. total_loss
+        self.timings["critic"] += time.perf_counter() - t0
+        return critic_loss, {"losses/value_loss": td_loss, **out.metrics}
+
+    def _actor_step(self, loss: Tensor) -> Tensor:
+        t0 = time.perf_counter()
+        self.actor_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        norm = nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
+        self.actor_opt.step()
+        self.timings["actor_update"] += time.perf_counter() - t0
+        return norm
+
+    def _critic_step(self, loss: Tensor) -> Tensor:
+        t0 = time.perf_counter()
+        self.critic_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        norm = nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
+        self.critic_opt.step()
+        soft_update(self.target_critic, self.critic, self.target_tau)
+        self.timings["critic"] += time.perf_counter() - t0
+        return norm
+
+    def _minibatch(self, r: dict[str, Tensor], envs: Tensor, adv: Tensor, targets: Tensor,
+                   h0: Tensor) -> dict[str, Tensor]:
+        """One actor step and one critic step on the environments ``envs``. The two share no
+        tensor that either changes, so with ``ppo.concurrent_actor_critic`` the actor's half
+        runs on a second thread while the critic's runs here: same arithmetic, same RNG draws
+        (only the critic draws), two joins per minibatch."""
+        pool = self._pool()
+        if pool is None:
+            actor_loss, a_stats = self._actor_loss(r, envs, adv)
+            critic_loss, c_stats = self._critic_loss(r, envs, targets, h0)
+        else:
+            fut = pool.submit(self._actor_loss, r, envs, adv)
+            critic_loss, c_stats = self._critic_loss(r, envs, targets, h0)
+            actor_loss, a_stats = fut.result()
+        if not (torch.isfinite(actor_loss) and torch.isfinite(critic_loss)):
+            raise NonFiniteLossError(
+                f"non-finite loss in update {self.num_updates + 1}: actor "
+                f"{float(actor_loss)}, critic {float(critic_loss)}")
+        if pool is None:
+            a_norm = self._actor_step(actor_loss)
+            c_norm = self._critic_step(critic_loss)
+        else:
+            fut_norm = pool.submit(self._actor_step, actor_loss)
+            c_norm = self._critic_step(critic_loss)
+            a_norm = fut_norm.result()
+        return {**a_stats, **c_stats, "losses/actor_grad_norm": a_norm,
+                "losses/critic_grad_norm": c_norm}
+
+    def _pool(self) -> ThreadPoolExecutor | None:
+        if not self.cfg.concurrent_actor_critic:
+            return None
+        if self._executor is None:
+            threads = torch.get_num_threads()  # the worker keeps the trainer's thread count
+            self._executor = ThreadPoolExecutor(
+                1, "ppo-actor", initializer=torch.set_num_threads, initargs=(threads,))
+        return self._executor
+
     # -- the update -----------------------------------------------------------------------
 
     def update(self, rollout: Rollout) -> dict[str, float]:
@@ -277,49 +371,7 @@ class PPOLearner:
         for _epoch in range(cfg.epochs):
             perm = torch.from_numpy(self.rng.permutation(b))
             for envs in perm.chunk(num_mb):
-                t0 = time.perf_counter()
-                logits = self._actor_logits(r, envs)
-                logp_all = torch.log_softmax(logits, dim=-1)
-                logp = logp_all.gather(-1, r["actions"][:, envs, :, None]).squeeze(-1)
-                entropy = -(logp_all.exp() * logp_all).sum(-1).mean()
-                mb_adv = adv[:, envs]
-                if cfg.normalize_advantages and mb_adv.numel() > 1:
-                    mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
-                pg_loss, approx_kl, clipfrac = clipped_policy_loss(
-                    logp, r["logp_old"][:, envs], mb_adv, cfg.clip)
-                actor_loss = pg_loss - cfg.entropy_coef * entropy
-                t1 = time.perf_counter()
-
-                out = self.critic.forward_sequence(r["obs"][:, envs], r["state"][:, envs],
-                                                   h0[:, envs], r["resets"][:, envs])
-                td_loss = ((out.values - targets[:, envs]) ** 2).mean()  # eq. loss
-                critic_loss = td_loss + out.aux_loss  # eq. total_loss
-                if not (torch.isfinite(actor_loss) and torch.isfinite(critic_loss)):
-                    raise NonFiniteLossError(
-                        f"non-finite loss in update {self.num_updates + 1}: actor "
-                        f"{float(actor_loss)}, critic {float(critic_loss)}")
-
-                t2 = time.perf_counter()
-                self.actor_opt.zero_grad(set_to_none=True)
-                actor_loss.backward()
-                a_norm = nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.max_grad_norm)
-                self.actor_opt.step()
-                t3 = time.perf_counter()
-                self.critic_opt.zero_grad(set_to_none=True)
-                critic_loss.backward()
-                c_norm = nn.utils.clip_grad_norm_(self.critic.parameters(), cfg.max_grad_norm)
-                self.critic_opt.step()
-                soft_update(self.target_critic, self.critic, self.target_tau)
-                t4 = time.perf_counter()
-                self.timings["actor_update"] += (t1 - t0) + (t3 - t2)
-                self.timings["critic"] += (t2 - t1) + (t4 - t3)
-
-                step = {
-                    "losses/policy_loss": pg_loss, "losses/value_loss": td_loss,
-                    "losses/entropy": entropy, "losses/approx_kl": approx_kl,
-                    "losses/clipfrac": clipfrac, "losses/actor_grad_norm": a_norm,
-                    "losses/critic_grad_norm": c_norm, **out.metrics,
-                }
+                step = self._minibatch(r, envs, adv, targets, h0)
                 for k, v in step.items():
                     sums[k] = sums.get(k, 0.0) + float(v.detach())
                 count += 1

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 from torch import Tensor
+from torch.nn import functional as F
 
 from sdhn_train.algorithms.sdhn.hypergraph import HGCN, HypergraphGenerator, Noise, binary_concrete
 from sdhn_train.algorithms.sdhn.skewness import (
@@ -51,8 +52,20 @@ class SDHNCritic(Critic):
         n = obs.shape[-2]
         x = self.node_encoder(obs).reshape(-1, n, self.hgcn_hidden)
         m = self.hgcn(x, incidence.reshape(-1, n, incidence.shape[-1])).reshape(*lead, n, -1)
-        s = self.state_encoder(state).unsqueeze(-2).expand(*lead, n, -1)
-        return self.value_head(torch.cat([s, m], dim=-1)).squeeze(-1), incidence
+        return self._head(self.state_encoder(state), m), incidence
+
+    def _head(self, s: Tensor, m: Tensor) -> Tensor:
+        """value_head([s, m_i]) for every robot i: s [..., S_h] (one per team), m [..., N, F].
+
+        The first layer is split, W [s; m] + b = (W_s s + b) + W_m m_i, so the state's part is
+        computed once per team instead of once per robot (no N-fold copy of s): the same
+        arithmetic as the concatenation up to float rounding (test_hypergraph checks 1e-5)."""
+        first = next(iter(self.value_head[0].children()))
+        assert isinstance(first, torch.nn.Linear)
+        k = s.shape[-1]
+        pre = F.linear(s, first.weight[:, :k], first.bias).unsqueeze(-2) \
+            + F.linear(m, first.weight[:, k:])
+        return self.value_head[1](torch.relu(pre)).squeeze(-1)
 
     def forward_sequence(self, obs: Tensor, state: Tensor, h0: Tensor,
                          resets: Tensor) -> CriticOutput:

@@ -13,7 +13,7 @@ from typing import Literal, get_args
 import torch
 from torch import Tensor, nn
 
-from sdhn_policy.actor_torch import gru_sequence
+from sdhn_policy.actor_torch import SequenceFn, gru_sequence
 
 Noise = Literal["logistic", "gumbel_paper"]
 NOISES: tuple[str, ...] = get_args(Noise)  # the one list of Binary Concrete noise laws
@@ -34,6 +34,7 @@ class HypergraphGenerator(nn.Module):
         self.num_layers, self.hidden = num_layers, hidden
         self.encoder = nn.Sequential(nn.Linear(obs_size * num_robots, hidden), nn.ReLU())
         self.gru = nn.GRU(hidden, hidden, num_layers=num_layers)
+        self.gru_sequence: SequenceFn = gru_sequence  # swappable like Actor.gru_sequence
         self.to_logits = nn.Linear(hidden, num_robots * num_hyperedges)
 
     def initial_state(self, batch: int) -> Tensor:
@@ -46,7 +47,8 @@ class HypergraphGenerator(nn.Module):
 
         Where resets[t], the hidden state is zeroed before step t (a new episode starts)."""
         t_len, b = obs.shape[:2]
-        out, hiddens = gru_sequence(self.gru, self.encoder(obs.reshape(t_len, b, -1)), h0, resets)
+        x = self.encoder(obs.reshape(t_len, b, -1))
+        out, hiddens = self.gru_sequence(self.gru, x, h0, resets)
         logits = self.to_logits(out)
         return logits.reshape(t_len, b, self.num_robots, self.num_hyperedges), hiddens
 

@@ -1,0 +1,144 @@
+"""Read the fields of the step messages straight from their CDR bytes (ROS-free; no rclpy import).
+
+Why: the trainer node takes 2N+1 messages per team step (N = 20: 41 messages, ~3,000 a second).
+Letting rclpy build a Python message for each (message, Header and Time objects, an array.array)
+costs more than everything the trainer then does with it; under load the node fell behind the
+loop. Its subscriptions take raw CDR (``raw=True``) and these functions read the fields at their
+offsets with ``struct`` and ``np.frombuffer`` (the float arrays are views, no copy).
+
+Layout: XCDR1, little endian (the encapsulation header ``00 01``), every primitive aligned to
+its size relative to the first byte after the 4-byte encapsulation header; a string is a uint32
+length (with the NUL) and its bytes; a sequence a uint32 count and its elements. The tests check
+these readers against ``rclpy.serialization.serialize_message`` field for field. Malformed bytes
+raise ``CdrError``.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+_U32 = struct.Struct("<I")
+_IDS = struct.Struct("<IIHH")  # episode, step, robot_id, num_robots
+_ACT = struct.Struct("<IIHB")  # episode, step, robot_id, action
+_ACT_TAIL = struct.Struct("<fI")  # log_prob, policy_version
+_OBS_TAIL = struct.Struct("<f??")  # reward, terminated, truncated
+_STATE_TAIL = struct.Struct("<f??")
+_STATE_END = struct.Struct("<IIi")  # makespan_so_far, missed_actions, instance_id
+_LE = b"\x00\x01"
+
+
+class CdrError(ValueError):
+    """Bytes that are not a well-formed little-endian CDR message of the expected type."""
+
+
+def _align(pos: int, n: int) -> int:
+    """``pos`` is absolute (4 = first byte after the encapsulation header)."""
+    return 4 + (-(-(pos - 4) // n)) * n
+
+
+def _skip_string(data: bytes, pos: int) -> int:
+    pos = _align(pos, 4)
+    (length,) = _U32.unpack_from(data, pos)
+    end = pos + 4 + length
+    if end > len(data):
+        raise CdrError("string runs past the end")
+    return end
+
+
+def _floats(data: bytes, pos: int) -> tuple[npt.NDArray[np.float32], int]:
+    pos = _align(pos, 4)
+    (count,) = _U32.unpack_from(data, pos)
+    end = pos + 4 + 4 * count
+    if end > len(data):
+        raise CdrError("float32[] runs past the end")
+    return np.frombuffer(data, np.float32, count, pos + 4), end
+
+
+def _check(data: bytes) -> None:
+    if len(data) < 16 or data[:2] != _LE:
+        raise CdrError("not little-endian CDR")
+
+
+class Observation(NamedTuple):
+    episode: int
+    step: int
+    robot_id: int
+    num_robots: int
+    obs: npt.NDArray[np.float32]
+    reward: float
+    terminated: bool
+    truncated: bool
+
+
+class Action(NamedTuple):
+    episode: int
+    step: int
+    robot_id: int
+    action: int
+    log_prob: float
+    policy_version: int
+
+
+class State(NamedTuple):
+    episode: int
+    step: int
+    num_robots: int
+    state: npt.NDArray[np.float32]
+    team_reward: float
+    terminated: bool
+    truncated: bool
+    missed_actions: int
+
+
+def read_observation(data: bytes) -> Observation:
+    """``sdhn_msgs/RobotObservation``: header, episode, step, robot_id, num_robots, obs[],
+    reward, terminated, truncated."""
+    try:
+        _check(data)
+        pos = _skip_string(data, 12)  # after the stamp (sec, nanosec): frame_id
+        pos = _align(pos, 4)
+        episode, step, robot_id, num_robots = _IDS.unpack_from(data, pos)
+        obs, pos = _floats(data, pos + 12)
+        reward, terminated, truncated = _OBS_TAIL.unpack_from(data, _align(pos, 4))
+    except struct.error as e:
+        raise CdrError(str(e)) from None
+    return Observation(episode, step, robot_id, num_robots, obs, reward, terminated, truncated)
+
+
+def read_action(data: bytes) -> Action:
+    """``sdhn_msgs/RobotAction``: header, episode, step, robot_id, action, log_prob,
+    policy_version."""
+    try:
+        _check(data)
+        pos = _align(_skip_string(data, 12), 4)
+        episode, step, robot_id, action = _ACT.unpack_from(data, pos)
+        log_prob, version = _ACT_TAIL.unpack_from(data, pos + 12)
+    except struct.error as e:
+        raise CdrError(str(e)) from None
+    return Action(episode, step, robot_id, action, log_prob, version)
+
+
+def read_state(data: bytes) -> State:
+    """``sdhn_msgs/TeamState``: header, env_name, episode, step, num_robots, state[],
+    positions[], team_reward, terminated, truncated, makespan_so_far, missed_actions,
+    instance_id."""
+    try:
+        _check(data)
+        pos = _skip_string(data, 12)  # frame_id
+        pos = _align(_skip_string(data, pos), 4)  # env_name
+        episode, step = struct.unpack_from("<II", data, pos)
+        (num_robots,) = struct.unpack_from("<H", data, pos + 8)
+        state, pos = _floats(data, pos + 10)
+        pos = _align(pos, 4)
+        (n_pos,) = _U32.unpack_from(data, pos)
+        pos += 4 + 4 * n_pos
+        team_reward, terminated, truncated = _STATE_TAIL.unpack_from(data, _align(pos, 4))
+        pos = _align(_align(pos, 4) + 6, 4)
+        _makespan, missed, _instance = _STATE_END.unpack_from(data, pos)
+    except struct.error as e:
+        raise CdrError(str(e)) from None
+    return State(episode, step, num_robots, state, team_reward, terminated, truncated, missed)

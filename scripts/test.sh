@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Set up everything (idempotent, see setup.sh) and run every quality gate:
 # ruff on the whole tree, mypy on src/, then pytest (extra arguments go to pytest).
-# Tests that fail are re-run once, on their own: the multi-process fault tests depend on DDS
-# discovery timing on a busy 2-core machine. A test that fails twice fails the run, and the first
-# run's failure summary stays in the log, so flaky tests remain visible.
+# Tests that fail are re-run once, on their own, as a flakiness report: the output ends with a
+# "[test] FLAKY" line naming every test that failed and then passed on its re-run (CI shows
+# them), and a "[test] FAILED TWICE" line for those that fail the run.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 "$ROOT/scripts/setup.sh"
@@ -20,5 +20,28 @@ status=0
 .venv/bin/python -m pytest "$@" || status=$?
 # Exit code 1 means some tests failed; anything else (interrupted, usage error) is final.
 [ "$status" -eq 1 ] || exit "$status"
-echo "[test] re-running the failed tests once (see the summary above for which ones)"
-exec .venv/bin/python -m pytest --last-failed --last-failed-no-failures none "$@"
+LASTFAILED=.pytest_cache/v/cache/lastfailed
+failed_ids() {  # node ids pytest recorded as failed in its last run, one per line
+  .venv/bin/python -c 'import json, sys
+try:
+    print("\n".join(sorted(json.load(open(sys.argv[1])))))
+except (OSError, ValueError):
+    pass' "$LASTFAILED"
+}
+first="$(failed_ids)"
+echo "[test] re-running $(echo "$first" | grep -c .) failed test(s) once, on their own:"
+echo "$first" | sed 's/^/[test]   /'
+status=0
+.venv/bin/python -m pytest --last-failed --last-failed-no-failures none "$@" || status=$?
+[ "$status" -le 1 ] || exit "$status"
+again="$(failed_ids)"
+flaky="$(comm -23 <(echo "$first") <(echo "$again") | grep . || true)"
+if [ -n "$flaky" ]; then
+  echo "[test] FLAKY (failed, then passed on the re-run): $(echo "$flaky" | grep -c .) test(s)"
+  echo "$flaky" | sed 's/^/[test] FLAKY   /'
+fi
+if [ "$status" -ne 0 ]; then
+  echo "[test] FAILED TWICE:"
+  echo "$again" | sed 's/^/[test] FAILED  /'
+fi
+exit "$status"

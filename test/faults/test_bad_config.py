@@ -48,6 +48,25 @@ CASES = {
     "trainer-unknown-env": (("sdhn_train", "trainer"), ["env:=nope"], "env:"),
     "trainer-missing-config": (("sdhn_train", "trainer"),
                                ["env:=maif-tiny", "config:=/nonexistent/train.yaml"], "config:"),
+    # Issue 16: a wrong parameter type, a bad namespace, unreadable YAML: one line, exit 2.
+    "actor-string-robot-id": (("sdhn_policy", "actor"), ["robot_id:=abc", "num_robots:=4"],
+                              "robot_id"),
+    "actor-bad-team-ns": (("sdhn_policy", "actor"), ["robot_id:=0", "team_ns:=/bad//ns"],
+                          "team_ns:"),
+    "trainer-bad-team-ns": (("sdhn_train", "trainer"), ["env:=maif-tiny", "team_ns:=/9bad"],
+                            "team_ns:"),
+    "recorder-bad-team-ns": (("sdhn_sim", "recorder"), ["team_ns:=/a/", "output:={tmp}/r.mcap"],
+                             "team_ns:"),
+    "trainer-binary-config": (("sdhn_train", "trainer"),
+                              ["env:=maif-tiny", "config:={tmp}/bin.yaml"], "config:"),
+    "trainer-malformed-config": (("sdhn_train", "trainer"),
+                                 ["env:=maif-tiny", "config:={tmp}/bad.yaml"], "config:"),
+    "actor-sidecar-json-list": (("sdhn_policy", "actor"),
+                                ["robot_id:=0", "weights_file:={tmp}/list.safetensors"],
+                                "weights_file:"),
+    "actor-payload-is-a-directory": (("sdhn_policy", "actor"),
+                                     ["robot_id:=0", "weights_file:={tmp}/dir.safetensors"],
+                                     "weights_file:"),
     "trainer-corrupt-checkpoint": (("sdhn_train", "trainer"),
                                    ["env:=maif-tiny", "resume:=true", "run_dir:={ckpt}"],
                                    "resume:"),
@@ -86,6 +105,14 @@ def test_bad_config_one_line_exit_2_no_topic(case: str, watcher: Peer, tmp_path:
     if any("{ckpt}" in p for p in params):
         run_dir = corrupt_checkpoint(tmp_path / "run")
         params = [p.replace("{ckpt}", str(run_dir)) for p in params]
+    (tmp_path / "bin.yaml").write_bytes(bytes(range(256)))
+    (tmp_path / "bad.yaml").write_text("ppo: {lr: [1, 2\n")
+    (tmp_path / "list.safetensors").write_bytes(b"\0" * 16)
+    (tmp_path / "list.json").write_text("[1, 2, 3]")
+    (tmp_path / "dir.safetensors").mkdir()
+    shipped = Path(__file__).resolve().parents[2] / "models" / "maif-tiny-sdhn" / "actor.json"
+    (tmp_path / "dir.json").write_text(shipped.read_text())
+    params = [p.replace("{tmp}", str(tmp_path)) for p in params]
     node = NodeProcess(node_cmd(package, exe, ns, *params))
     appeared: set[str] = set()
     t0 = time.monotonic()

@@ -223,3 +223,95 @@ def test_rate_republishes_every_message_on_its_topic(recorded: tuple[Path, str],
         want = [m.data for m in original.messages if m.topic == topic]
         got = [m.data for m in replayed.messages if m.topic == topic]
         assert got == want, f"{topic}: {len(got)} of {len(want)} messages replayed"
+
+
+def test_rate_delivers_every_message_to_a_slow_subscriber(tmp_path: Path) -> None:
+    """400 states recorded 0.1 ms apart, replayed at --rate 10 to a reliable keep-all subscriber
+    that takes 2 ms per message: every one arrives. (A keep-last subscriber this slow loses
+    messages in its own queue, which DDS acknowledges on arrival: README, Reliability.)"""
+    import threading
+
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from sdhn_msgs.msg import TeamState
+
+    n, ns = 400, "/rate_slow"
+    path = tmp_path / "burst.mcap"
+    with McapRosWriter(path) as w:
+        for k in range(n):
+            m = TeamState()
+            m.episode, m.step, m.num_robots = 0, k, 1
+            w.write(topics.absolute(ns, topics.STATE), m, 1_000_000_000 + k * 100_000)
+    got: list[int] = []
+
+    def slow(msg: Any) -> None:
+        time.sleep(0.002)
+        got.append(int(msg.step))
+
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("slow_sub", context=context)
+    keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+    sub = node.create_subscription(TeamState, topics.absolute(ns, topics.STATE), slow, keep_all)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spin = threading.Thread(target=executor.spin, daemon=True)
+    spin.start()
+    try:
+        done = subprocess.run([*REPLAY, str(path), "--rate", "10", "--wait", "10"],
+                              capture_output=True, text=True, timeout=120, check=False)
+        deadline = time.monotonic() + 15
+        while len(got) < n and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        executor.shutdown()
+        node.destroy_subscription(sub)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert done.returncode == 0, done.stderr
+    assert got == list(range(n)), f"{len(got)} of {n} delivered"
+
+
+@pytest.mark.parametrize("rate", ["1e-300", "1e300", "nan", "-1"])
+def test_rate_out_of_range_is_one_line(recorded: tuple[Path, str], rate: str) -> None:
+    path, _ = recorded
+    done = subprocess.run([*REPLAY, str(path), "--rate", rate], capture_output=True, text=True,
+                          timeout=60, check=False)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert "--rate" in done.stderr.strip().splitlines()[-1]
+
+
+def test_rate_reports_messages_a_stalled_subscriber_never_acknowledged(tmp_path: Path) -> None:
+    """A matched subscriber that stops (SIGSTOP: its process frozen, nothing acknowledged): replay
+    says how many messages were not acknowledged, per topic, and exits 1 (it used to exit 0)."""
+    import signal
+
+    from sdhn_msgs.msg import TeamState
+
+    ns = "/rate_stalled"
+    path = tmp_path / "burst.mcap"
+    with McapRosWriter(path) as w:
+        for k in range(300):
+            m = TeamState()
+            m.step = k
+            w.write(topics.absolute(ns, topics.STATE), m, 1_000_000_000 + k * 1_000_000)
+    command = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p",
+               f"output:={tmp_path / 'rec.mcap'}", "-p", f"team_ns:={ns}"]
+    with node_processes(command) as (recorder,):
+        assert recorder.wait_for_line("ready", timeout=20), recorder.output
+        # 300 messages 1 ms apart at --rate 0.05: 6 s of replay; the recorder freezes 2 s in,
+        # after discovery (which needs both sides awake) and the first messages.
+        replay = subprocess.Popen([*REPLAY, str(path), "--rate", "0.05", "--wait", "10"],
+                                  stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True)
+        time.sleep(2.0)
+        recorder.proc.send_signal(signal.SIGSTOP)
+        try:
+            out, err = replay.communicate(timeout=120)
+        finally:
+            recorder.proc.send_signal(signal.SIGCONT)
+    done = subprocess.CompletedProcess(replay.args, replay.returncode, out, err)
+    assert done.returncode == 1, (done.returncode, done.stderr)
+    line = done.stderr.strip().splitlines()[-1]
+    assert "not acknowledged" in line and f"{ns}/state=" in line, done.stderr

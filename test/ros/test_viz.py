@@ -264,3 +264,33 @@ def test_viz_config_errors_exit_2_with_one_line(case: str) -> None:
     assert viz.proc.returncode == 2, viz.output
     assert len(errors) == 1, viz.output
     assert (str(port) if case == "port_in_use" else "env:") in errors[0], errors[0]
+
+
+def test_viz_limits_connections_and_logs_who_connects() -> None:
+    """max_clients:=2: a third TCP connection is closed at once (refused, logged); the first two
+    stay open; each connection is logged with the client's address."""
+    node = NodeProcess(viz_command("max_clients:=2"))
+    socks: list[socket.socket] = []
+    try:
+        port = served_port(node)
+        for _ in range(3):
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+            socks.append(s)
+            time.sleep(0.3)
+        socks[2].settimeout(5)
+        assert socks[2].recv(16) == b"", "the third connection was not closed"
+        for s in socks[:2]:
+            s.settimeout(0.5)
+            with pytest.raises(TimeoutError):
+                s.recv(16)  # open: nothing sent, nothing closed
+        assert node.wait_for_line("refused 127.0.0.1", timeout=5), node.output
+        socks[0].sendall(b"GET / HTTP/1.1\r\nHost: x\r\nOrigin: http://evil.example\r\n\r\n")
+        assert node.wait_for_line("Origin http://evil.example", timeout=5), node.output
+        assert node.wait_for_line("refused 127.0.0.1", timeout=5), node.output
+        connected = [ln for ln in node.output.splitlines() if "client connected from 127.0.0.1"
+                     in ln]
+        assert len(connected) == 2, node.output
+    finally:
+        for s in socks:
+            s.close()
+        assert node.stop() == 0, node.output

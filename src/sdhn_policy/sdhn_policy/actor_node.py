@@ -40,6 +40,7 @@ PARAMETERS = {
     "greedy": (False, boolean("argmax actions instead of sampling")),
     "seed": (0, integer("seed of the action sampler", 0)),
 }
+FAIL_AFTER = 3  # wrong-length observations before any answer that end the actor
 WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait for "
                    "the weights topic)")
 
@@ -64,6 +65,9 @@ class ActorNode(Node):
         self.robot_id = robot_id
         self._action = RobotAction(robot_id=robot_id)
         self.drops: Counter[str] = Counter()
+        self.failed_reason = ""  # set when this actor can never act (sdhn_sim.ros.runner)
+        self.answered = False  # any observation answered yet
+        self.unfit = 0  # observations of the wrong length before the first answer
         self.obs_sub: Subscription | None = None
         self.action_pub: Publisher | None = None
         weights_topic = topics.absolute(self.ns, topics.WEIGHTS)
@@ -107,6 +111,7 @@ class ActorNode(Node):
         out = self.core.on_obs(msg.episode, msg.step, msg.robot_id, msg.num_robots, msg.obs,
                                done=msg.terminated or msg.truncated)
         if isinstance(out, Decision):
+            self.answered = True
             assert self.action_pub is not None
             # One message, refilled per step (rclpy serialises at publish): no per-step message,
             # Header and Time objects. The stamp is the wall clock the node's ROS clock reads
@@ -118,6 +123,15 @@ class ActorNode(Node):
             self.action_pub.publish(a)
         elif isinstance(out, Drop):
             self.drop(out.kind, f"episode {msg.episode} step {msg.step}: {out.reason}")
+            # Weights that do not fit the environment: the simulator re-sends step 0, every
+            # copy the wrong length. One stray message after acting is only dropped (hostile
+            # input must not end an actor); FAIL_AFTER of them before any answer end it (exit 1).
+            if out.kind == "wrong_obs_length" and not self.answered:
+                self.unfit += 1
+                if self.unfit >= FAIL_AFTER:
+                    self.failed_reason = (f"robot {self.robot_id} cannot act: {out.reason}, "
+                                          f"{self.unfit} times before any answer (weights do "
+                                          "not fit the environment)")
 
     def drop(self, kind: str, detail: str) -> None:
         self.drops[kind] += 1

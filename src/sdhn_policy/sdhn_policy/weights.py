@@ -32,6 +32,7 @@ from safetensors.numpy import load as st_load
 from safetensors.numpy import save as st_save
 
 from sdhn_policy.features import check_transform, feature_size
+from sdhn_sim.litter import clean_stale_tmp
 
 ACTOR_FORMAT = "sdhn-actor/2"
 """Format string of the actor blob; bump the number on any incompatible change.
@@ -281,7 +282,10 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     """Write ``data`` to ``path`` via a temp file in the same directory, fsync, then rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    # The writer's pid is in the name, so a later start can tell a killed writer's leftover
+    # (sdhn_sim.litter.clean_stale_tmp, run below after every write) from a live one's.
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp",
+                               dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -291,6 +295,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    clean_stale_tmp(path.parent)
     dir_fd = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(dir_fd)
@@ -329,6 +334,8 @@ def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
     path = Path(path)
     try:
         side = json.loads(sidecar_path(path).read_text())
+        if not isinstance(side, dict):
+            raise TypeError(f"expected a JSON object, got {type(side).__name__}")
         payload = path.read_bytes()
         entry = side
         previous = side.get("previous")
@@ -343,6 +350,10 @@ def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
         )
     except FileNotFoundError as e:
         raise WeightsError(f"missing weights file: {e.filename}") from e
+    except IsADirectoryError as e:
+        raise WeightsError(f"{e.filename} is a directory, not a weights file") from e
+    except OSError as e:
+        raise WeightsError(f"cannot read {e.filename}: {e.strerror}") from e
     except (KeyError, TypeError, ValueError) as e:
         raise WeightsError(f"weights sidecar {sidecar_path(path)} is malformed: {e!r}") from e
     decode_weights(blob)

@@ -4,7 +4,13 @@
     train --config exp.yaml --set ppo.lr=3e-4 --set sdhn.skew_loss=false
     train --resume runs/<run>/checkpoints/step_000000409600   (or the run directory)
 
-Exit codes: 0 done, 2 invalid configuration, 3 training stopped on a non-finite loss.
+Resume takes the run's own saved config; flags may change only the fields in ``RESUME_SAFE``,
+any other change is refused. A checkpoint that fails to load (truncated, checksum) falls back to
+the previous one, said in one line. Nothing is written into the run before the checkpoint loaded.
+
+Exit codes: 0 done (or stopped by Ctrl-C / SIGTERM after saving a checkpoint), 2 invalid
+configuration or unusable checkpoint (one line; ``--debug`` for the traceback), 3 training
+stopped on a non-finite loss.
 """
 
 from __future__ import annotations
@@ -12,10 +18,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from sdhn_sim.envs.registry import env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES
-from sdhn_train.checkpoint import resolve_checkpoint
+from sdhn_train.checkpoint import CheckpointError, checkpoints, load_checkpoint
 from sdhn_train.config import (
     Config,
     ConfigError,
@@ -30,6 +39,12 @@ SHORTCUTS = {  # --flag -> config field
     "env": "env.name", "algo": "algo.name", "seed": "train.seed",
     "total_steps": "train.total_steps", "num_envs": "env.num_envs", "run_name": "log.run_name",
 }
+# What a run writes: a directory holding any of them is a run (another run's; never merged).
+# Other files (an experiment runner's spec or config beside it) do not make it one.
+RUN_FILES = ("checkpoints", "config.yaml", "metrics.csv", "actor.safetensors", "summary.json")
+# Fields a resume may change: they change neither the networks, the optimiser nor the data.
+RESUME_SAFE = frozenset({"train.total_steps", "log.checkpoint_interval", "log.progress",
+                         "log.tensorboard", "eval.interval", "train.threads"})
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,11 +63,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", type=Path, help="checkpoint path (without suffix) or run directory")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--print-config", action="store_true", help="print the final config and exit")
+    p.add_argument("--debug", action="store_true", help="show tracebacks of refused inputs")
     return p
 
 
-def config_from_args(args: argparse.Namespace) -> Config:
+def config_from_args(args: argparse.Namespace, base: dict[str, Any] | None = None) -> Config:
+    """Defaults (or the resumed run's saved config ``base``) <- --config <- shortcuts <- --set."""
     cfg = Config()
+    if base is not None:
+        apply_dict(cfg, base)
     if args.config is not None:
         apply_dict(cfg, load_yaml(args.config))
     for flag, target in SHORTCUTS.items():
@@ -70,33 +89,89 @@ def config_from_args(args: argparse.Namespace) -> Config:
     return cfg
 
 
-def latest_checkpoint(path: Path) -> Path:
-    """A checkpoint stem from a stem, a .json/.safetensors file, or a run directory (latest)."""
-    found = resolve_checkpoint(path)
-    if found is None:
-        raise ConfigError(f"--resume {path}: no checkpoints in that directory")
-    return found
+def _changed(saved: dict[str, Any], cfg: Config) -> list[str]:
+    now = cfg.to_dict()
+    return [f"{s}.{k}" for s, fields in now.items() for k, v in fields.items()
+            if saved.get(s, {}).get(k, v) != v]
+
+
+def resume_candidates(path: Path) -> list[Path]:
+    """Checkpoint stems to try, newest first: a run directory's checkpoints, or one stem."""
+    if path.is_dir():
+        found = checkpoints(path)
+        if not found:
+            raise ConfigError(f"--resume {path}: no checkpoints in that directory")
+        return found[::-1]
+    stem = path.with_suffix("") if path.suffix in (".json", ".safetensors") else path
+    if not stem.with_suffix(".json").is_file():
+        raise ConfigError(f"--resume {path}: no such checkpoint or run directory")
+    return [stem]
+
+
+def pick_checkpoint(path: Path, out: Any = sys.stderr) -> tuple[Path, dict[str, Any]]:
+    """The newest checkpoint that reads and passes its checksum, with its metadata; an older
+    one (said in one line) when the newest is damaged."""
+    errors = []
+    for stem in resume_candidates(path):
+        try:
+            _, meta = load_checkpoint(stem)
+        except CheckpointError as e:
+            errors.append(str(e))
+            continue
+        if errors:
+            print(f"train: newest checkpoint unusable ({errors[0]}); resuming from {stem}",
+                  file=out)
+        if not isinstance(meta.get("config"), dict):
+            raise ConfigError(f"{stem}: checkpoint has no saved config")
+        return stem, meta
+    raise ConfigError(f"--resume {path}: no usable checkpoint ({'; '.join(errors)})")
+
+
+def run_dir_of(stem: Path) -> Path | None:
+    return stem.parent.parent if stem.parent.name == "checkpoints" else None
+
+
+def _main(args: argparse.Namespace) -> int:
+    resume: Path | None = None
+    if args.resume is not None:
+        resume, meta = pick_checkpoint(args.resume)
+        saved = meta["config"]
+        cfg = config_from_args(args, base=saved)
+        refused = [f for f in _changed(saved, cfg) if f not in RESUME_SAFE]
+        if refused:
+            raise ConfigError(f"--resume: cannot change {', '.join(refused)} of a saved run "
+                              f"(allowed: {', '.join(sorted(RESUME_SAFE))}); start a new run")
+    else:
+        cfg = config_from_args(args)
+    if args.print_config:
+        print(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+        return 0
+    from sdhn_train.trainer import Trainer, default_run_dir
+
+    run_dir = run_dir_of(resume) if resume is not None else None
+    if resume is None:
+        run_dir = default_run_dir(cfg)
+        if run_dir.exists() and (not run_dir.is_dir()
+                                 or any((run_dir / f).exists() for f in RUN_FILES)):
+            raise ConfigError(f"log.run_name: run directory {run_dir} already holds a run; "
+                              "choose another name or --resume it")
+    trainer = Trainer(cfg, run_dir=run_dir)
+    return trainer.run(resume=resume)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        cfg = config_from_args(args)
-        resume = latest_checkpoint(args.resume) if args.resume is not None else None
-    except (ConfigError, OSError) as e:
-        print(f"train: invalid configuration: {e}", file=sys.stderr)
+        return _main(args)
+    except (ConfigError, CheckpointError, yaml.YAMLError, UnicodeDecodeError, OSError) as e:
+        if args.debug:
+            raise
+        text = " ".join(str(e).split())
+        print(f"train: invalid configuration: {text}", file=sys.stderr)
         return 2
-    if args.print_config:
-        import yaml
-
-        print(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
-        return 0
-    from sdhn_train.trainer import Trainer
-
-    run_dir = None
-    if resume is not None and resume.parent.name == "checkpoints":
-        run_dir = resume.parent.parent  # keep logging into the run being resumed
-    return Trainer(cfg, run_dir=run_dir).run(resume=resume)
+    except KeyboardInterrupt:  # a second Ctrl-C while the checkpoint was being written
+        print("train: interrupted twice; stopped without a final checkpoint", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

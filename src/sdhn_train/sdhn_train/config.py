@@ -115,8 +115,24 @@ def apply_dict(cfg: Config, data: dict[str, Any]) -> None:
             set_field(cfg, f"{section}.{name}", value)
 
 
+_YAML_ALLOWED = "allowed: a YAML file holding {section: {field: value}}"
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    data = yaml.safe_load(Path(path).read_text()) or {}
+    """A YAML mapping; ConfigError (one line) for a missing, unreadable, binary or malformed
+    file."""
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read: {e.strerror or e}; {_YAML_ALLOWED}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file; {_YAML_ALLOWED}") from None
+    except yaml.YAMLError as e:
+        where = getattr(e, "problem_mark", None)
+        at = f" at line {where.line + 1}" if where is not None else ""
+        raise ConfigError(f"{path}: malformed YAML{at}: "
+                          f"{getattr(e, 'problem', None) or type(e).__name__}; {_YAML_ALLOWED}"
+                          ) from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping of sections")
     return data
@@ -139,6 +155,8 @@ def validate(cfg: Config) -> None:
     }
     for path, v in positive.items():
         need(v >= 1, path, "an integer >= 1", v)
+    for path, v in {"train.seed": cfg.train.seed, "eval.seed": cfg.eval.seed}.items():
+        need(0 <= v < 2**32, path, "an integer in 0..2**32-1", v)
     cfg.ppo.validate()
     for section in cfg.algorithms.values():
         section.validate()

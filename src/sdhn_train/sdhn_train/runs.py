@@ -5,6 +5,7 @@ the metrics log, episode metrics, and the P_H snapshots ``sdhn_train.analysis`` 
 from __future__ import annotations
 
 import csv
+import io
 import random
 import time
 from pathlib import Path
@@ -13,6 +14,7 @@ from typing import Any, TextIO
 import numpy as np
 import torch
 
+from sdhn_policy.weights import atomic_write_bytes
 from sdhn_sim.envs.api import EpisodeStats
 from sdhn_train.learners.base import HypergraphSamples
 
@@ -41,6 +43,25 @@ def episode_metrics(prefix: str, episodes: list[EpisodeStats]) -> dict[str, floa
     if done:  # makespan of completed episodes only (NC episodes have none)
         out[f"{prefix}/makespan"] = float(np.mean(done))
     return out
+
+
+def trim_metrics(run_dir: Path, step: int) -> int:
+    """Drop rows of ``<run>/metrics.csv`` logged after ``step`` (the checkpoint a resume starts
+    from), so the resumed run's rows do not duplicate them. Atomic; returns the rows dropped."""
+    path = run_dir / "metrics.csv"
+    if not path.is_file():
+        return 0
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        return 0
+    keep = [rows[0]] + [r for r in rows[1:] if r and r[0].isdigit() and int(r[0]) <= step]
+    dropped = len(rows) - len(keep)
+    if dropped:
+        buf = io.StringIO()
+        csv.writer(buf).writerows(keep)
+        atomic_write_bytes(path, buf.getvalue().encode())
+    return dropped
 
 
 class MetricsLog:

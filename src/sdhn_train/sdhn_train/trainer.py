@@ -8,7 +8,9 @@ the ``Learner`` protocol is used: the same loop runs every algorithm of the regi
 from __future__ import annotations
 
 import json
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict
@@ -19,7 +21,7 @@ import numpy as np
 import torch
 import yaml
 
-from sdhn_policy.weights import save_actor_file
+from sdhn_policy.weights import atomic_write_bytes, save_actor_file
 from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import get_algorithm
@@ -31,7 +33,13 @@ from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs, rewar
 from sdhn_train.learners.base import Learner, NonFiniteLossError
 from sdhn_train.normalize import RewardNormalizer
 from sdhn_train.rollout import Rollout
-from sdhn_train.runs import MetricsLog, episode_metrics, save_ph_snapshot, seed_everything
+from sdhn_train.runs import (
+    MetricsLog,
+    episode_metrics,
+    save_ph_snapshot,
+    seed_everything,
+    trim_metrics,
+)
 from sdhn_train.warm_start import load_actor_into
 
 EnvFactory = Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
@@ -41,6 +49,13 @@ def default_env_factory(name: str, num_envs: int, seed: int, **overrides: Any) -
     from sdhn_sim.envs import make_env
 
     return make_env(name, num_envs=num_envs, seed=seed, **overrides)
+
+
+def default_run_dir(cfg: Config) -> Path:
+    """``<log.root>/<log.run_name>``, or a name from env, algorithm, seed and the time."""
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    name = cfg.log.run_name or f"{cfg.env.name}__{cfg.algo.name}__{cfg.train.seed}__{stamp}"
+    return Path(cfg.log.root) / name
 
 
 class Trainer:
@@ -63,9 +78,8 @@ class Trainer:
         self.global_step = 0
         self.last_checkpoint: Path | None = None
         self.last_rollout: Rollout | None = None  # for P_H snapshots (sdhn_train.analysis)
-        stamp = time.strftime("%Y%m%d-%H%M%S")
-        name = cfg.log.run_name or f"{cfg.env.name}__{cfg.algo.name}__{cfg.train.seed}__{stamp}"
-        self.run_dir = run_dir or Path(cfg.log.root) / name
+        self.run_dir = run_dir or default_run_dir(cfg)
+        self.stop_requested = False  # set by SIGINT / SIGTERM: checkpoint, then stop
 
     # -- checkpoints ---------------------------------------------------------------------------
 
@@ -87,7 +101,24 @@ class Trainer:
         return path
 
     def load_checkpoint(self, path: Path) -> None:
+        """Load ``path``; CheckpointError (one line) when it does not fit this configuration."""
         arrays, meta = ckpt.load_checkpoint(path)
+        saved = meta.get("config", {})
+        for section, name in (("algo", "name"), ("env", "name")):
+            have = getattr(getattr(self.cfg, section), name)
+            was = saved.get(section, {}).get(name, have)
+            if was != have:
+                raise ckpt.CheckpointError(f"{path}: checkpoint is for {section}.{name}={was}, "
+                                           f"not {have}")
+        try:
+            self._restore(arrays, meta)
+        except (RuntimeError, KeyError, ValueError, IndexError, TypeError) as e:
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise ckpt.CheckpointError(f"{path}: does not fit this configuration: {first}"
+                                       ) from e
+        self.last_checkpoint = path
+
+    def _restore(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
         ckpt.restore_learner_state(self.learner, arrays, meta)
         ckpt.env_restore(unwrap(self.env),
                          {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
@@ -100,7 +131,6 @@ class Trainer:
             self.reward_norm.load_state({k[12:]: v for k, v in arrays.items()
                                          if k.startswith("reward_norm.")})
         self.global_step = int(meta["global_step"])
-        self.last_checkpoint = path
 
     def write_ph_snapshot(self) -> Path | None:
         """P_H arrays of the last rollout for the figures (critics with hypergraphs only); on a
@@ -133,11 +163,20 @@ class Trainer:
 
     def run(self, resume: Path | None = None, out: TextIO = sys.stderr) -> int:
         cfg = self.cfg
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        (self.run_dir / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
-        if resume is not None:
+        if resume is not None:  # nothing is written into the run before its checkpoint loaded
             self.load_checkpoint(resume)
-            print(f"resumed from {resume} at step {self.global_step}", file=out)
+            dropped = trim_metrics(self.run_dir, self.global_step)
+            print(f"resumed from {resume} at step {self.global_step}"
+                  + (f" (dropped {dropped} metric rows logged after it)" if dropped else ""),
+                  file=out)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(self.run_dir / "config.yaml",
+                           yaml.safe_dump(cfg.to_dict(), sort_keys=False).encode())
+        with _stop_on_signals(self):
+            return self._loop(out)
+
+    def _loop(self, out: TextIO) -> int:
+        cfg = self.cfg
         log = MetricsLog(self.run_dir, cfg.log.tensorboard)
         bar = _progress(cfg.train.total_steps, self.global_step, cfg.log.progress, out)
         next_eval = _next_multiple(self.global_step, cfg.eval.interval)
@@ -145,7 +184,7 @@ class Trainer:
         start_time, start_step = time.perf_counter(), self.global_step
         recent: list[EpisodeStats] = []
         try:
-            while self.global_step < cfg.train.total_steps:
+            while self.global_step < cfg.train.total_steps and not self.stop_requested:
                 metrics, episodes = self.train_iteration()
                 recent = (recent + episodes)[-100:]
                 sps = (self.global_step - start_step) / (time.perf_counter() - start_time)
@@ -173,6 +212,12 @@ class Trainer:
             return 3
         bar.close()
         self.save_checkpoint()
+        if self.stop_requested:
+            log.close()
+            print(f"train: stopped at step {self.global_step}; checkpoint "
+                  f"{self.last_checkpoint}; continue with: train --resume {self.run_dir}",
+                  file=out)
+            return 0
         self.write_ph_snapshot()
         final = self.evaluate() if self.eval_env is not None else {}
         if final:
@@ -186,6 +231,30 @@ class Trainer:
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
         print(json.dumps(summary), file=out)
         return 0
+
+
+class _stop_on_signals:
+    """SIGINT / SIGTERM ask the loop to stop after the current iteration (which then saves a
+    checkpoint); a second signal stops at once. Main thread only; handlers restored on exit."""
+
+    def __init__(self, trainer: Trainer) -> None:
+        self.trainer = trainer
+        self.saved: dict[int, Any] = {}
+
+    def _handle(self, signum: int, frame: object) -> None:
+        if self.trainer.stop_requested:
+            raise KeyboardInterrupt
+        self.trainer.stop_requested = True
+
+    def __enter__(self) -> _stop_on_signals:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.saved[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self.saved.items():
+            signal.signal(sig, handler)
 
 
 def _next_multiple(step: int, interval: int) -> int:

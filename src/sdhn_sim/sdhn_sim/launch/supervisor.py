@@ -51,6 +51,7 @@ import yaml
 
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names
+from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.overrides import OverrideError, set_field
 from sdhn_sim.ros import topics
 from sdhn_sim.ros.status import READY_ENV, EventReader, read_statuses
@@ -122,6 +123,26 @@ def resolve_weights(path: str) -> Path:
     return p
 
 
+def check_weights_fit(path: Path, env: str) -> None:
+    """Refuse weights the actors could not use on ``env`` (observation length, action count,
+    one-hot team size), before any process starts."""
+    from sdhn_policy.weights import WeightsError, decode_weights, load_actor_file
+    from sdhn_sim.envs import make_env
+
+    try:
+        spec, _ = decode_weights(load_actor_file(path))
+    except WeightsError as e:
+        raise LaunchConfigError(f"weights: {path}: {e.reason}") from None
+    probe = make_env(env, num_envs=1, seed=0)
+    n = team_size(env)
+    wrong = [f"{what} {have} (the env has {want})" for what, have, want in (
+        ("observation length", spec.obs_size, probe.obs_size),
+        ("action count", spec.num_actions, probe.num_actions),
+        ("team size", spec.num_robots if spec.use_robot_id else n, n)) if have != want]
+    if wrong:
+        raise LaunchConfigError(f"weights: {path} does not fit {env}: " + ", ".join(wrong))
+
+
 def validate(cfg: LaunchConfig) -> None:
     """Raise LaunchConfigError naming the first bad field; ``cfg`` is left as it is."""
     if cfg.env not in env_names():
@@ -135,7 +156,7 @@ def validate(cfg: LaunchConfig) -> None:
     if cfg.mode == "deploy":
         if not cfg.weights:
             raise LaunchConfigError("weights: deploy mode needs an actor weights file or run dir")
-        resolve_weights(cfg.weights)
+        check_weights_fit(resolve_weights(cfg.weights), cfg.env)
     if cfg.restart.policy not in RESTART_POLICIES:
         raise LaunchConfigError(f"restart.policy: got {cfg.restart.policy!r}; allowed: "
                                 f"{', '.join(RESTART_POLICIES)}")
@@ -183,8 +204,15 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
     if path is not None:
         try:
             data = yaml.safe_load(path.read_text()) or {}
-        except (OSError, yaml.YAMLError) as e:
-            raise LaunchConfigError(f"config: cannot read {path}: {e}") from e
+        except OSError as e:
+            raise LaunchConfigError(f"config: cannot read {path}: {e.strerror or e}") from None
+        except UnicodeDecodeError:
+            raise LaunchConfigError(f"config: {path} is not a text file (YAML expected)"
+                                    ) from None
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            at = f" at line {mark.line + 1}" if mark is not None else ""
+            raise LaunchConfigError(f"config: {path}: malformed YAML{at}") from None
         if not isinstance(data, dict):
             raise LaunchConfigError(f"config: {path} must hold a mapping of fields")
         for k, v in data.items():
@@ -199,7 +227,10 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
         key, sep, value = item.partition("=")
         if not sep:
             raise LaunchConfigError(f"--set {item!r}: expected FIELD=VALUE")
-        parsed = yaml.safe_load(value) if value.strip() else ""
+        try:
+            parsed = yaml.safe_load(value) if value.strip() else ""
+        except yaml.YAMLError:
+            parsed = value  # not YAML: the text itself, checked by the field's type
         if key.strip().startswith("trainer."):
             set_trainer(cfg, key.strip().removeprefix("trainer."), parsed)
         else:
@@ -289,6 +320,10 @@ def status_dir(run_dir: Path) -> Path:
 
 
 SIM_EVENTS = "sim-events.jsonl"
+# What a launch writes into its run_dir: a directory holding any of them is another run's and is
+# refused (its logs, events and CSV would be read and appended to as this run's). Other files
+# (a wrapper's own log, like scripts/soak.py's) do not make it one.
+RUN_FILES = ("launch.yaml", "logs", "status", "episodes.csv", "recording.mcap", "trainer")
 
 
 def _die_with_parent() -> None:
@@ -427,8 +462,9 @@ class Launcher:
         return " | ".join(parts)
 
     def write_config(self) -> None:
-        (self.run_dir / "launch.yaml").write_text(
-            yaml.safe_dump(dataclasses.asdict(self.cfg), sort_keys=False))
+        tmp = self.run_dir / f".launch.yaml.{os.getpid()}.w.tmp"  # sdhn_sim.litter
+        tmp.write_text(yaml.safe_dump(dataclasses.asdict(self.cfg), sort_keys=False))
+        os.replace(tmp, self.run_dir / "launch.yaml")
 
     def read_events(self) -> None:
         """Take the simulator's new events: start of stepping, progress, finished episodes."""
@@ -567,16 +603,36 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="override a field, e.g. --set episodes=3 --set restart.policy=on-failure")
     p.add_argument("--print-config", action="store_true", help="print the final config and exit")
+    p.add_argument("--debug", action="store_true", help="show tracebacks of refused inputs")
     args = p.parse_args(argv)
     try:
         cfg = load_config(args.config, args.set)
     except (LaunchConfigError, OverrideError) as e:
+        if args.debug:
+            raise
         print(f"launch: invalid configuration: {e}", file=sys.stderr)
         return 2
     if args.print_config:
         print(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False))
         return 0
-    return Launcher(cfg).run()
+    clean_fastdds_shm()  # segments of killed participants (sdhn_sim.litter)
+    run_dir = Path(cfg.run_dir)
+    if run_dir.exists() and (not run_dir.is_dir()
+                             or any((run_dir / f).exists() for f in RUN_FILES)):
+        print(f"launch: invalid configuration: run_dir: {run_dir} already holds a run; every "
+              "run gets its own directory (choose another, or leave run_dir unset for a fresh "
+              "one)", file=sys.stderr)
+        return 2
+    try:
+        launcher = Launcher(cfg)
+        launcher.write_config()
+    except OSError as e:
+        if args.debug:
+            raise
+        print(f"launch: invalid configuration: run_dir: cannot write {e.filename or run_dir}: "
+              f"{e.strerror or e}", file=sys.stderr)
+        return 2
+    return launcher.run()
 
 
 if __name__ == "__main__":

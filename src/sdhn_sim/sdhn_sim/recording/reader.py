@@ -24,6 +24,7 @@ frames show robots on a blank grid and the note says why. Nothing is inferred fr
 from __future__ import annotations
 
 import struct
+from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -75,6 +76,7 @@ class Recording:
     profile: str = ""
     schemas: dict[int, Schema] = field(default_factory=dict)  # as read, to copy a recording
     channels: dict[int, Channel] = field(default_factory=dict)
+    undecodable: Counter[str] = field(default_factory=Counter)  # topic -> messages skipped
 
     def topics(self) -> dict[str, int]:
         counts: dict[str, int] = {}
@@ -82,12 +84,24 @@ class Recording:
             counts[m.topic] = counts.get(m.topic, 0) + 1
         return counts
 
-    def decoded(self, suffix: str) -> Iterator[tuple[RawMessage, Any]]:
-        """(raw, message) of every CDR message whose topic ends with ``suffix`` (e.g. '/state');
-        viz channels (protobuf/JSON, e.g. '/viz/hypergraph') are never decoded here."""
+    def decoded(self, suffix: str, type_name: str | None = None
+                ) -> Iterator[tuple[RawMessage, Any]]:
+        """(raw, message) of every CDR message whose topic ends with ``suffix`` (e.g. '/state')
+        and, if given, whose type is ``type_name``; viz channels (protobuf/JSON, e.g.
+        '/viz/hypergraph') are never decoded here. A message of an unknown type or with
+        malformed CDR is skipped and counted in ``undecodable`` (by topic)."""
         for m in self.messages:
-            if m.encoding == "cdr" and m.topic.endswith(suffix):
-                yield m, decode(m)
+            if m.encoding != "cdr" or not m.topic.endswith(suffix):
+                continue
+            if type_name is not None and m.type_name != type_name:
+                self.undecodable[m.topic] += 1
+                continue
+            try:
+                msg = decode(m)
+            except Exception:  # unknown type (UnknownMessageType) or garbage CDR, from the file
+                self.undecodable[m.topic] += 1
+                continue
+            yield m, msg
 
 
 class NotMcapError(ValueError):
@@ -290,7 +304,7 @@ class EpisodeRow:
 
 def summaries_from_messages(rec: Recording) -> dict[int, EpisodeRow]:
     rows = {}
-    for _, m in rec.decoded(f"/{topics.EPISODE}"):
+    for _, m in rec.decoded(f"/{topics.EPISODE}", "sdhn_msgs/msg/EpisodeSummary"):
         rows[int(m.episode)] = EpisodeRow(
             int(m.episode), str(m.env_name), int(m.length), bool(m.completed),
             int(m.makespan) if m.completed else None, float(m.episode_return),
@@ -301,13 +315,11 @@ def summaries_from_messages(rec: Recording) -> dict[int, EpisodeRow]:
 def summaries_from_states(rec: Recording) -> dict[int, EpisodeRow]:
     """Episodes whose terminal TeamState was recorded, recomputed from the states (see above)."""
     steps: dict[int, dict[int, Any]] = {}
-    for _, s in rec.decoded(f"/{topics.STATE}"):
+    for _, s in rec.decoded(f"/{topics.STATE}", "sdhn_msgs/msg/TeamState"):
         steps.setdefault(int(s.episode), {})[int(s.step)] = s
     versions: dict[int, int] = {}
-    for raw in rec.messages:
-        if raw.encoding == "cdr" and raw.topic.endswith(f"/{topics.ACTION}"):
-            a = decode(raw)
-            versions[int(a.episode)] = max(versions.get(int(a.episode), 0), int(a.policy_version))
+    for _, a in rec.decoded(f"/{topics.ACTION}", "sdhn_msgs/msg/RobotAction"):
+        versions[int(a.episode)] = max(versions.get(int(a.episode), 0), int(a.policy_version))
     rows = {}
     for episode, by_step in steps.items():
         last = by_step[max(by_step)]
@@ -373,8 +385,9 @@ def episode_frames(rec: Recording, episode: int, cell_px: int = 16) -> EpisodeFr
     """One RGB image per recorded TeamState of ``episode`` (KeyError if none was recorded)."""
     from sdhn_sim.envs.render import render_grid
 
-    states = sorted(((int(s.step), s) for _, s in rec.decoded(f"/{topics.STATE}")
-                     if int(s.episode) == episode), key=lambda x: x[0])
+    recorded = rec.decoded(f"/{topics.STATE}", "sdhn_msgs/msg/TeamState")
+    states = sorted(((int(s.step), s) for _, s in recorded if int(s.episode) == episode),
+                    key=lambda x: x[0])
     if not states:
         raise KeyError(episode)
     positions = np.stack([np.frombuffer(s.positions, dtype=np.int32).astype(np.int64).reshape(-1, 2)

@@ -4,8 +4,13 @@
 --summary          per-episode table: the simulator's EpisodeSummary messages, recomputed from the
                    recorded TeamState for episodes without one (source column says which).
 --rate X           republish every recorded message on its own topic at X times the recorded speed
-                   (1 = as recorded), with the contract's QoS (policy/weights latched, hypergraph
-                   best effort, the rest STEP). Waits up to --wait seconds for subscribers first.
+                   (1 = as recorded, 0.001..1000), with the contract's QoS (policy/weights
+                   latched, hypergraph best effort, the rest STEP). Waits up to --wait seconds for
+                   subscribers first. Flow control: every reliable topic waits for its matched
+                   subscribers to acknowledge before its history window could overwrite an
+                   unacknowledged sample, and once more before exiting; a slow subscriber slows
+                   the replay instead of losing messages. Messages not acknowledged within
+                   --ack-timeout are counted, named in one line, and the exit code is 1.
 --export-episode K PNG frames (frame_<step>.png) of episode K rendered from the recorded TeamState
 --out DIR          positions, on the MAIF map of the recorded instance id (recording.reader).
 --add-viz          write a copy with the viz channels (/viz/scene, /viz/hypergraph,
@@ -21,16 +26,19 @@
 
 With no action flag it prints the topics and message counts. Exit codes: 0 done (also for a
 truncated recording: the readable part is used and one line says where it stops), 1 the requested
-episode is not in the recording, 2 bad arguments, a port in use, or not an MCAP file.
+episode is not in the recording or --rate could not deliver every message, 2 bad
+arguments, a port in use, or not an MCAP file.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 from sdhn_sim.recording.reader import (
@@ -45,6 +53,9 @@ from sdhn_sim.recording.reader import (
     write_with_viz,
 )
 
+MIN_RATE, MAX_RATE = 0.001, 1000.0
+
+
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="replay", description="Summarise, republish or render "
@@ -55,6 +66,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="republish at X times the recorded speed (X > 0)")
     parser.add_argument("--wait", type=float, default=2.0, metavar="S",
                         help="with --rate: seconds to wait for subscribers before publishing")
+    parser.add_argument("--ack-timeout", type=float, default=10.0, metavar="S",
+                        help="with --rate: seconds to wait for subscribers' acknowledgements")
     parser.add_argument("--export-episode", type=int, default=None, metavar="K",
                         help="write PNG frames of episode K (needs --out)")
     parser.add_argument("--out", type=Path, default=None, metavar="PATH",
@@ -67,11 +80,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--host", default="127.0.0.1", help="with --foxglove: address to bind")
     parser.add_argument("--port", type=int, default=8765,
                         help="with --foxglove: port (0 = any free port)")
+    parser.add_argument("--debug", action="store_true",
+                        help="show tracebacks of refused inputs and unwritable outputs")
     parser.add_argument("--loop", action="store_true",
                         help="with --foxglove: start over after the last state until Ctrl-C")
     args = parser.parse_args(argv)
-    if args.rate is not None and not args.rate > 0:
-        parser.error(f"--rate: {args.rate}; allowed: a number > 0 (1 = recorded speed)")
+    if args.rate is not None and not MIN_RATE <= args.rate <= MAX_RATE:
+        parser.error(f"--rate: {args.rate}; allowed: {MIN_RATE}..{MAX_RATE:g} "
+                     "(1 = recorded speed)")
+    for name in ("wait", "ack_timeout"):
+        if not 0 <= getattr(args, name) <= 3600:
+            parser.error(f"--{name.replace('_', '-')}: {getattr(args, name)}; allowed: 0..3600")
     if args.export_episode is not None and args.add_viz:
         parser.error("--export-episode and --add-viz: one at a time (each takes --out)")
     if args.export_episode is not None and args.out is None:
@@ -97,6 +116,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"replay: error: no such file {args.recording}", file=sys.stderr)
         return 2
     except (NotMcapError, OSError) as e:
+        if args.debug:
+            raise
         print(f"replay: error: {e}", file=sys.stderr)
         return 2
     if rec.truncated is not None:
@@ -104,18 +125,29 @@ def main(argv: list[str] | None = None) -> int:
     code = 0
     if args.summary:
         print(format_rows(episode_rows(rec)))
-    if args.export_episode is not None:
-        code = export(rec, args.export_episode, args.out, args.cell_px)
-    if args.add_viz:
-        code = max(code, add_viz(rec, args.out))
+    try:
+        if args.export_episode is not None:
+            code = export(rec, args.export_episode, args.out, args.cell_px)
+        if args.add_viz:
+            code = max(code, add_viz(rec, args.out))
+    except OSError as e:  # a full disk, a read-only or missing directory
+        if args.debug:
+            raise
+        print(f"replay: error: --out: cannot write {e.filename or args.out}: "
+              f"{e.strerror or e}", file=sys.stderr)
+        return 2
     if args.foxglove:
         code = max(code, serve_foxglove(rec, args.host, args.port, args.rate or 1.0, args.loop))
     elif args.rate is not None:
-        republish(rec, args.rate, args.wait)
+        code = max(code, republish(rec, args.rate, args.wait, args.ack_timeout))
     if not (args.summary or args.export_episode is not None or args.rate is not None
             or args.add_viz or args.foxglove):
         for topic, count in sorted(rec.topics().items()):
             print(f"{count:>8}  {topic}")
+    if rec.undecodable:
+        where = ", ".join(f"{t}={n}" for t, n in sorted(rec.undecodable.items()))
+        print(f"replay: skipped {sum(rec.undecodable.values())} messages of an unknown type or "
+              f"with malformed CDR ({where})", file=sys.stderr)
     return code
 
 
@@ -127,6 +159,10 @@ def export(rec: Recording, episode: int, out: Path, cell_px: int) -> int:
     except KeyError:
         print(f"replay: error: episode {episode} has no recorded state", file=sys.stderr)
         return 1
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        print(f"replay: error: --out: {out} exists and is not an empty directory; frames are "
+              "never written over other files", file=sys.stderr)
+        return 2
     out.mkdir(parents=True, exist_ok=True)
     for step, image in zip(frames.steps, frames.images, strict=True):
         Image.fromarray(image).save(out / f"frame_{step:05d}.png")
@@ -143,10 +179,17 @@ def add_viz(rec: Recording, out: Path | None) -> int:
         return 0
     requested = out or rec.path.with_name(f"{rec.path.stem}-viz.mcap")
     target = fresh_path(requested)  # never the input, never an existing file
-    done = write_with_viz(rec, target)
+    # Atomic: written beside the target, renamed when complete; a failed write (a full disk)
+    # leaves nothing (sdhn_sim.litter cleans a killed writer's temporary file).
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.w.tmp")
+    try:
+        done = write_with_viz(rec, tmp)
+        if done.team_ns is not None:
+            os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)
     if done.team_ns is None:
         print(f"replay: {rec.path} has no sdhn_msgs/TeamState to draw; nothing written")
-        target.unlink()
         return 0
     written = ", ".join(f"{t}={c}" for t, c in sorted(done.written.items())) or "none"
     dropped = ", ".join(f"{k}={v}" for k, v in sorted(done.dropped.items())) or "none"
@@ -239,44 +282,86 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
     return 0
 
 
-def republish(rec: Recording, rate: float, wait: float) -> None:
+def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.0) -> int:
     """Publish the raw CDR of every message again, paced by the recorded log times / rate
-    (viz channels, which are not ROS messages, are left out)."""
+    (viz channels, which are not ROS messages, are left out), with flow control on reliable
+    topics (module doc). 0 when every reliable message was acknowledged, else 1."""
     import rclpy
     from rclpy.context import Context
+    from rclpy.duration import Duration
 
     from sdhn_sim.recording.reader import current_cdr
     from sdhn_sim.recording.schema import message_class
     from sdhn_sim.ros import topics
     from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
+    profile_file = Path(__file__).resolve().parent.parent / "data" / "fastdds-replay.xml"
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(profile_file))
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("replay", context=context)
     pubs = {}
+    reliable: set[str] = set()
+    window: dict[str, int] = {}
     messages = [m for m in rec.messages if m.encoding == "cdr"]
+    skipped: Counter[str] = Counter()
     try:
         for m in messages:
-            if m.topic not in pubs:
+            if m.topic not in pubs and m.topic not in skipped:
                 profile = (LATCHED if topics.team_of(m.topic, topics.WEIGHTS) else
                            SENSOR if topics.team_of(m.topic, topics.HYPERGRAPH) else STEP)
-                pubs[m.topic] = node.create_publisher(message_class(m.type_name), m.topic, profile)
+                try:
+                    cls = message_class(m.type_name)
+                except (ValueError, LookupError, ImportError):  # schema.UnknownMessageType
+                    skipped[m.topic] += 1
+                    continue
+                pubs[m.topic] = node.create_publisher(cls, m.topic, profile)
+                if profile is not SENSOR:
+                    reliable.add(m.topic)
+                    # samples in flight before waiting: below the history depth, so an
+                    # unacknowledged sample is never overwritten (1 for the latched weights)
+                    window[m.topic] = max(1, profile.depth * 3 // 4)
+            elif m.topic in skipped:
+                skipped[m.topic] += 1
+        for topic, n in sorted(skipped.items()):
+            print(f"replay: skipped {n} messages of {topic}: unknown type", file=sys.stderr)
+        messages = [m for m in messages if m.topic in pubs]
         deadline = time.monotonic() + wait
         while time.monotonic() < deadline and any(p.get_subscription_count() == 0
                                                   for p in pubs.values()):
             time.sleep(0.05)
         ordered = sorted(messages, key=lambda m: m.log_time_ns)
         if not ordered:
-            return
+            return 0
+        timeout, stalled = Duration(seconds=ack_timeout), Duration(seconds=0.1)
+        in_flight: Counter[str] = Counter()  # published since the last full acknowledgement
+        lost: Counter[str] = Counter()  # not acknowledged within the timeout
         t0, start = ordered[0].log_time_ns, time.monotonic()
         for m in ordered:
             delay = (m.log_time_ns - t0) / 1e9 / rate - (time.monotonic() - start)
             if delay > 0:
                 time.sleep(delay)
-            pubs[m.topic].publish(current_cdr(m))
+            pub = pubs[m.topic]
+            if m.topic in reliable and in_flight[m.topic] >= window[m.topic]:
+                # A topic that already timed out is not waited on for long again: its
+                # subscriber is stalled, and the replay keeps its pace for the others.
+                if not pub.wait_for_all_acked(stalled if m.topic in lost else timeout):
+                    lost[m.topic] += in_flight[m.topic]
+                in_flight[m.topic] = 0
+            pub.publish(current_cdr(m))
+            in_flight[m.topic] += 1
+        for topic in reliable:  # the last window, before the writers go away
+            if in_flight[topic] and not pubs[topic].wait_for_all_acked(timeout):
+                lost[topic] += in_flight[topic]
+        elapsed = time.monotonic() - start
         print(f"republished {len(ordered)} messages on {len(pubs)} topics in "
-              f"{time.monotonic() - start:.2f} s (rate {rate}x)")
-        time.sleep(0.2)  # let reliable writers hand the last samples over
+              f"{elapsed:.2f} s (rate {rate}x)")
+        if lost:
+            names = ", ".join(f"{t}={n}" for t, n in sorted(lost.items()))
+            print(f"replay: error: {sum(lost.values())} messages not acknowledged within "
+                  f"{ack_timeout:g} s by a matched subscriber ({names})", file=sys.stderr)
+            return 1
+        return 0
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)

@@ -3,7 +3,8 @@
 Why not ``rclpy.spin``: the events executor of the Jazzy wheels busy-loops and ignores signals
 when spun without a timeout (docs/ros-graph.md), so we spin in short slices. SIGINT and SIGTERM
 set a flag instead of rclpy's own handler shutting the context down under us, so the node can
-still log and flush (``on_stop``) before it is destroyed; the exit code is then 0. A
+still log and flush (``on_stop``) before it is destroyed; the exit code is then 0. A node that
+finds it cannot do its job sets ``failed_reason`` (:data:`FAILED`): exit code 1 and that line. A
 configuration error found while building the node exits with code 2 and one line on stderr,
 before any topic is created. Once the node is built, the ready file of :mod:`sdhn_sim.ros.status`
 is written (when asked for).
@@ -23,6 +24,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.ros.status import write_ready
 
 
@@ -31,6 +33,9 @@ class ConfigError(ValueError):
 
 
 SPIN_SLICE_S = 0.05
+# A node that cannot go on sets this attribute to a one-line reason: the loop stops, the reason
+# goes to stderr and the exit code is 1 (the launcher reports the child as failed).
+FAILED = "failed_reason"
 
 
 def run_node(
@@ -45,6 +50,7 @@ def run_node(
     """
     args = list(sys.argv if argv is None else argv)
     prog = args[0] if args else "node"
+    clean_fastdds_shm()  # what killed participants left in /dev/shm (sdhn_sim.litter)
     context = Context()
     rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
@@ -66,10 +72,14 @@ def run_node(
         executor.add_node(node)
         write_ready(node.get_name(), node.get_namespace())
         try:
-            while context.ok() and not stop.is_set():
+            while context.ok() and not stop.is_set() and not getattr(node, FAILED, ""):
                 executor.spin_once(timeout_sec=SPIN_SLICE_S)
         finally:
             executor.shutdown(timeout_sec=1.0)
+        reason = getattr(node, FAILED, "")
+        if reason:
+            print(f"{prog}: error: {reason}", file=sys.stderr)
+            return 1
         return 0
     finally:
         if node is not None:

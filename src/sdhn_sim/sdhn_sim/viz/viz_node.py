@@ -35,6 +35,7 @@ from sdhn_sim.ros.qos import SENSOR, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.viz.channels import EPISODE_SCHEMA, METRICS_SCHEMA
+from sdhn_sim.viz.gate import Gate
 from sdhn_sim.viz.renderer import VizRenderer
 from sdhn_sim.viz.world import BadInput
 
@@ -73,6 +74,8 @@ PARAMETERS = {
     "host": ("127.0.0.1", string("address the Foxglove WebSocket server binds")),
     "port": (8765, integer("Foxglove WebSocket port; 0 = any free port", 0, 65535)),
     "trail_length": (12, integer("steps of trail drawn behind each robot", 1, 10_000)),
+    "max_clients": (8, integer("most WebSocket clients connected at once (more are refused and "
+                               "logged)", 1, 1000)),
 }
 
 
@@ -94,14 +97,21 @@ class VizNode(Node):
 
         self.fox = foxglove.Context()
         self.listener = _Subscriptions()
-        try:
+        try:  # the SDK server on loopback, behind the gate (connection limit, who connects)
             self.server = foxglove.start_server(
-                name="sdhn viz", host=host, port=port, context=self.fox,
+                name="sdhn viz", host="127.0.0.1", port=0, context=self.fox,
                 server_listener=self.listener,
             )
         except RuntimeError as error:
             reason = str(error).split(": ", 1)[-1]
-            raise ConfigError(f"port: cannot serve on {host}:{port} ({reason})") from None
+            raise ConfigError(f"port: cannot serve on 127.0.0.1 ({reason})") from None
+        try:
+            self.gate = Gate(host, port, self.server.port, int(p["max_clients"]),
+                             self.get_logger().info)
+        except OSError as error:
+            self.server.stop()
+            raise ConfigError(f"port: cannot serve on {host}:{port} "
+                              f"({error.strerror or error})") from None
         self.scene_ch = SceneUpdateChannel(VIZ_SCENE, context=self.fox)
         self.hyper_ch = SceneUpdateChannel(VIZ_HYPERGRAPH, context=self.fox)
         self.p_h_ch = RawImageChannel(VIZ_P_H, context=self.fox)
@@ -127,7 +137,7 @@ class VizNode(Node):
             self.get_logger().warning(f"serving beyond loopback on {host}: anyone who can reach "
                                       "it can watch")
         self.get_logger().info(
-            f"ready: foxglove ws://{host}:{self.server.port} team_ns={ns} "
+            f"ready: foxglove ws://{host}:{self.gate.port} team_ns={ns} "
             f"env={env or '(from msgs)'}"
         )
 
@@ -203,6 +213,7 @@ class VizNode(Node):
             self.episode_ch.log(summary)
 
     def stop(self) -> None:
+        self.gate.close()
         self.server.stop()
         dropped = ", ".join(f"{k}={v}" for k, v in sorted(self.dropped.items())) or "none"
         self.get_logger().info(f"served {self.encoded} encoded messages; dropped: {dropped}")

@@ -195,14 +195,4 @@ def log_lines(path: Path) -> list[LogLine]:
         if m:
             out.append(LogLine(m.group(1), float(m.group(2)), m.group(3), m.group(4)))
     return out
-
-
-def rss_kb(pid: int) -> int | None:
-    """Resident set size of ``pid`` in kB (None once it is gone)."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    except OSError:
-        return None
     return None

@@ -195,4 +195,3 @@ def log_lines(path: Path) -> list[LogLine]:
         if m:
             out.append(LogLine(m.group(1), float(m.group(2)), m.group(3), m.group(4)))
     return out
-    return None

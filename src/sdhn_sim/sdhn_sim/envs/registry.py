@@ -12,10 +12,16 @@ with another generator seed, for evaluation on maps never trained on | "large": 
 RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``.
 Overrides: ``max_steps``, ``size`` ("tiny" | "small" | "medium" | "large"),
 ``difficulty`` ("easy" | "normal" | "hard").
+
+Adding an environment is one module implementing ``BatchedEnv`` plus one ``Family`` line in
+``FAMILIES`` (see docs/adding-an-environment.md); every tool that takes an env name (trainer,
+launcher, simulator, viz, experiment suites) reads the names from here.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from .api import BatchedEnv
@@ -30,31 +36,59 @@ RWARE_OVERRIDES = ("max_steps", "size", "difficulty")
 RWARE_TASKS = {"rware-3": 3, "rware-6": 6, "rware-9": 9}
 
 
+@dataclass(frozen=True)
+class Family:
+    """Named environments built by one constructor: name -> team size, and the overrides the
+    constructor takes (anything else is refused before it is called)."""
+
+    teams: dict[str, int]
+    overrides: tuple[str, ...]
+    make: Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
+
+
+def _make_maif(name: str, num_envs: int, seed: int, **overrides: Any) -> BatchedEnv:
+    which = overrides.pop("instance_set", "train")
+    if which not in INSTANCE_SETS:
+        raise ValueError(f"instance_set must be one of {list(INSTANCE_SETS)}, got {which!r}")
+    cfg = MAIF_CONFIGS[name]
+    cfg = {"train": cfg, "heldout": heldout_config(cfg), "large": large_config(cfg)}[which]
+    return MaifEnv(load_instances(cfg), num_envs=num_envs, seed=seed, name=name, **overrides)
+
+
+def _make_rware(name: str, num_envs: int, seed: int, **overrides: Any) -> BatchedEnv:
+    return RwareEnv(RWARE_TASKS[name], num_envs=num_envs, seed=seed, name=name, **overrides)
+
+
+FAMILIES: tuple[Family, ...] = (
+    Family({k: c.num_robots for k, c in MAIF_CONFIGS.items()}, MAIF_OVERRIDES, _make_maif),
+    Family(dict(RWARE_TASKS), RWARE_OVERRIDES, _make_rware),
+)
+
+
 def env_names() -> list[str]:
     """Every name ``make_env`` accepts."""
-    return [*MAIF_CONFIGS, *RWARE_TASKS]
+    return [name for family in FAMILIES for name in family.teams]
 
 
-def _check_overrides(name: str, overrides: dict[str, Any], allowed: tuple[str, ...]) -> None:
-    for key in overrides:
-        if key not in allowed:
-            raise ValueError(f"{name}: unknown override {key!r}; allowed: {list(allowed)}")
+def _family(name: str) -> Family:
+    for family in FAMILIES:
+        if name in family.teams:
+            return family
+    raise ValueError(f"unknown environment {name!r}; known: {env_names()}")
+
+
+def team_size(name: str) -> int:
+    """Robots of the named environment (without building it)."""
+    return int(_family(name).teams[name])
 
 
 def make_env(name: str, num_envs: int = 1, seed: int = 0, **overrides: Any) -> BatchedEnv:
     """A batched environment by name (see ``env_names()``)."""
-    if name in MAIF_CONFIGS:
-        _check_overrides(name, overrides, MAIF_OVERRIDES)
-        which = overrides.pop("instance_set", "train")
-        if which not in INSTANCE_SETS:
-            raise ValueError(f"instance_set must be one of {list(INSTANCE_SETS)}, got {which!r}")
-        cfg = MAIF_CONFIGS[name]
-        cfg = {"train": cfg, "heldout": heldout_config(cfg), "large": large_config(cfg)}[which]
-        return MaifEnv(load_instances(cfg), num_envs=num_envs, seed=seed, name=name, **overrides)
-    if name in RWARE_TASKS:
-        _check_overrides(name, overrides, RWARE_OVERRIDES)
-        return RwareEnv(RWARE_TASKS[name], num_envs=num_envs, seed=seed, name=name, **overrides)
-    raise ValueError(f"unknown environment {name!r}; known: {env_names()}")
+    family = _family(name)
+    for key in overrides:
+        if key not in family.overrides:
+            raise ValueError(f"{name}: unknown override {key!r}; allowed: {list(family.overrides)}")
+    return family.make(name, num_envs, seed, **overrides)
 
 
 def make_single_env(name: str, seed: int = 0, **overrides: Any) -> SingleEnv:

@@ -49,8 +49,7 @@ from typing import IO, Any
 
 import yaml
 
-from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
-from sdhn_sim.envs.registry import RWARE_TASKS, env_names
+from sdhn_sim.envs.registry import env_names, team_size
 from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.overrides import OverrideError, set_field
 from sdhn_sim.ros import topics
@@ -101,12 +100,6 @@ class LaunchConfig:
     status_interval: float = 1.0  # seconds between status lines
     restart: RestartConfig = field(default_factory=RestartConfig)
     trainer: TrainerSection = field(default_factory=dict)
-
-
-def team_size(env: str) -> int:
-    if env in MAIF_CONFIGS:
-        return int(MAIF_CONFIGS[env].num_robots)
-    return int(RWARE_TASKS[env])
 
 
 def resolve_weights(path: str) -> Path:

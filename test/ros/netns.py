@@ -7,6 +7,7 @@ Names carry the test run's pid and a counter, so parallel runs never collide."""
 
 from __future__ import annotations
 
+import functools
 import itertools
 import os
 import shutil
@@ -70,6 +71,7 @@ class Net:
         return ";".join(h.addr for h in self.hosts.values())
 
 
+@functools.cache
 def netem_unavailable_reason() -> str | None:
     """Why ``tc qdisc ... netem`` cannot run here (None when it can), probed on a veth inside a
     throw-away namespace pair, never on the machine's own interfaces."""

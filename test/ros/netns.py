@@ -80,7 +80,7 @@ def netem_unavailable_reason() -> str | None:
     reason = unavailable_reason()
     if reason is not None:
         return reason
-    with test_network(["probe"], multicast=False) as net:
+    with closed_network(["probe"], multicast=False) as net:
         h = net.hosts["probe"]
         done = subprocess.run(["tc", "-n", h.netns, "qdisc", "add", "dev", "eth0", "root", "netem",
                                "delay", "5ms"], capture_output=True, text=True, check=False)
@@ -99,7 +99,7 @@ def _kill_all(netns: str) -> None:
 
 
 @contextmanager
-def test_network(hosts: Sequence[str], multicast: bool = True) -> Iterator[Net]:
+def closed_network(hosts: Sequence[str], multicast: bool = True) -> Iterator[Net]:
     """One namespace per host name, all on one bridge; ``multicast=False`` gives interfaces with
     multicast off and no multicast route (then discovery needs static peers)."""
     tag = f"{os.getpid() % 100000:05d}{next(_counter) % 100:02d}"

@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from .deploy_helpers import actor_cmd, inprocess_greedy_actions, sim_cmd, stop_all
-from .netns import Net, host_env, netem_unavailable_reason, test_network, unavailable_reason
+from .netns import Net, closed_network, host_env, netem_unavailable_reason, unavailable_reason
 from .processes import REPO, node_processes
 
 pytestmark = pytest.mark.skipif(unavailable_reason() is not None,
@@ -53,7 +53,7 @@ def test_deploy_across_namespaces_equals_inprocess_greedy_rollout(
     seed, episodes, max_steps = 5, 2, 40
     expected = inprocess_greedy_actions(weights, "maif-tiny", seed, episodes, max_steps)
     ns = "/sdhn_hosts"
-    with test_network(HOSTS, multicast=discovery == "multicast") as net:
+    with closed_network(HOSTS, multicast=discovery == "multicast") as net:
         env = host_env(net, static_peers=discovery == "static_peers")
         out = tmp_path / "seen.json"
         actors = [net.hosts[f"actor{i}"].exec(
@@ -88,7 +88,7 @@ def test_link_down_3s_then_up(weights: Path, tmp_path: Path) -> None:
     """One actor's cable pulled for 3 s: its late actions become `stay` and are counted, nothing
     crashes, and it acts again within 2 s of the link coming back."""
     ns, victim, deadline = "/sdhn_linkdown", 2, 0.5
-    with test_network(HOSTS) as net:
+    with closed_network(HOSTS) as net:
         env = host_env(net)
         out, stop = tmp_path / "seen.json", tmp_path / "stop"
         actors = [net.hosts[f"actor{i}"].exec(
@@ -147,7 +147,7 @@ def test_netem_profiles(profile: str) -> None:
 def test_launcher_hosts_runs_the_graph_across_namespaces(weights: Path, tmp_path: Path) -> None:
     """``hosts:`` in the launch config puts the simulator, the recorder and each actor on its own
     host; the run completes its episodes and the recording is written."""
-    with test_network(["sim", "recorder", *[f"actor{i}" for i in range(N)]]) as net:
+    with closed_network(["sim", "recorder", *[f"actor{i}" for i in range(N)]]) as net:
         sets = [f"hosts.{name}={h.netns}" for name, h in net.hosts.items()
                 if name in ("sim", "recorder")]
         sets += [f"hosts.actor_{i}={net.hosts[f'actor{i}'].netns}" for i in range(N)]

@@ -126,9 +126,6 @@ def test_link_down_3s_then_up(weights: Path, tmp_path: Path) -> None:
     assert missed >= 1, sim.output
     assert after, f"robot {victim} never acted after the link came back"
     back = after[0] - t_up
-    if os.environ.get("SDHN_NETNS_DUMP"):
-        Path(os.environ["SDHN_NETNS_DUMP"]).write_text(json.dumps(
-            {"t_down": t_down, "t_up": t_up, "seen": seen, "sim": sim.output}))
     rate, ms = _rate(seen["actions"])
     print(f"\n[netns link-down] steps={steps} missed={missed} back after {back:.2f} s; "
           f"{rate:.1f} team steps/s, {ms:.1f} ms/step, load {os.getloadavg()[0]:.2f}")

@@ -28,6 +28,10 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
     trainer: {algo: sdhn, rollout_steps: 128, ...}   (mode train; passed through as the
                           trainer node's parameters, which the trainer itself checks: a bad one
                           ends the trainer with exit 2 and one line naming it in its log)
+    hosts: {sim: NETNS, actor_0: NETNS, ...}   (tests and demos of robots on separate hosts: the
+                          child runs in that existing network namespace via ``ip netns exec``
+                          (root), with Fast DDS on UDP only and discovery on the subnet, not
+                          localhost; children not named run in the launcher's own namespace)
 """
 
 from __future__ import annotations
@@ -100,6 +104,7 @@ class LaunchConfig:
     status_interval: float = 1.0  # seconds between status lines
     restart: RestartConfig = field(default_factory=RestartConfig)
     trainer: TrainerSection = field(default_factory=dict)
+    hosts: dict[str, str] = field(default_factory=dict)  # child name -> network namespace
 
 
 def resolve_weights(path: str) -> Path:
@@ -166,6 +171,13 @@ def validate(cfg: LaunchConfig) -> None:
         topics.check_team_ns(cfg.team_ns)
     except topics.NamespaceError as e:
         raise LaunchConfigError(str(e)) from None
+    names = [c.name for c in graph(dataclasses.replace(cfg, robots=n, run_dir=".", hosts={}))]
+    for child, netns in cfg.hosts.items():
+        if child not in names:
+            raise LaunchConfigError(f"hosts.{child}: no such child; allowed: {', '.join(names)}")
+        if not (Path("/run/netns") / str(netns)).exists():
+            raise LaunchConfigError(f"hosts.{child}: no network namespace {netns!r}; allowed: "
+                                    "one listed by `ip netns list`")
     for key, value in cfg.trainer.items():
         if key in LAUNCHER_SETS:
             raise LaunchConfigError(f"trainer.{key}: set by the launcher; allowed: any other "
@@ -209,7 +221,11 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
         if not isinstance(data, dict):
             raise LaunchConfigError(f"config: {path} must hold a mapping of fields")
         for k, v in data.items():
-            if str(k) == "trainer":
+            if str(k) == "hosts":
+                if not isinstance(v, dict):
+                    raise LaunchConfigError(f"hosts: expected a mapping, got {v!r}")
+                cfg.hosts.update({str(hk): str(hv) for hk, hv in v.items()})
+            elif str(k) == "trainer":
                 if not isinstance(v, dict):
                     raise LaunchConfigError(f"trainer: expected a mapping, got {v!r}")
                 for tk, tv in v.items():
@@ -224,7 +240,9 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
             parsed = yaml.safe_load(value) if value.strip() else ""
         except yaml.YAMLError:
             parsed = value  # not YAML: the text itself, checked by the field's type
-        if key.strip().startswith("trainer."):
+        if key.strip().startswith("hosts."):
+            cfg.hosts[key.strip().removeprefix("hosts.")] = str(parsed)
+        elif key.strip().startswith("trainer."):
             set_trainer(cfg, key.strip().removeprefix("trainer."), parsed)
         else:
             set_field(cfg, key.strip(), parsed)
@@ -251,17 +269,19 @@ class ChildSpec:
     ros_args: list[str]
     essential: bool = False  # the graph ends when this child ends (the simulator)
     restart_args: list[str] = field(default_factory=list)  # appended when it is restarted
+    netns: str = ""  # run inside this network namespace ("" = the launcher's own)
 
     def command(self, restart: bool = False) -> list[str]:
         """The package's console script next to this interpreter (what ``ros2 run`` runs from
         ``lib/<package>``), else the ``ros2 run`` shim, which finds it by package metadata
         (~0.1 s more start-up per process). A restart adds ``restart_args`` (resume:=true)."""
         ros_args = [*self.ros_args, *(self.restart_args if restart else [])]
+        host = ["ip", "netns", "exec", self.netns] if self.netns else []
         script = Path(sys.executable).parent / self.executable
         if script.is_file() and _entry_package(script) == self.package:
-            return [str(script), "--ros-args", *ros_args]
-        return [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", self.package, self.executable,
-                "--ros-args", *ros_args]
+            return [*host, str(script), "--ros-args", *ros_args]
+        return [*host, sys.executable, "-m", "sdhn_sim.ros2_cli", "run", self.package,
+                self.executable, "--ros-args", *ros_args]
 
 
 def _entry_package(script: Path) -> str | None:
@@ -304,6 +324,8 @@ def graph(cfg: LaunchConfig) -> list[ChildSpec]:
             *_param("robot_id", i), *_param("num_robots", cfg.robots),
             *_param("weights_file", weights), *_param("greedy", greedy),
             *_param("seed", cfg.seed)]))
+    for child in children:
+        child.netns = cfg.hosts.get(child.name, "")
     return children
 
 
@@ -421,6 +443,12 @@ class Launcher:
         env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
         # Faster participant announcements, so a restarted child matches the others in < 1 s.
         env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
+        if cfg.hosts:
+            # Separate hosts: data must cross the network (on one machine Fast DDS would pass it
+            # through shared memory, around the namespaces), and discovery must reach the subnet.
+            env["FASTDDS_BUILTIN_TRANSPORTS"] = "UDPv4"
+            if env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "") in ("", "LOCALHOST"):
+                env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
         ready_dir = status_dir(self.run_dir)
         ready_dir.mkdir(parents=True, exist_ok=True)
         self.events = EventReader(ready_dir / SIM_EVENTS)

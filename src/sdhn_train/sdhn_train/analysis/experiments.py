@@ -2,6 +2,8 @@
 training processes, several at once, resumable.
 
     run_experiments configs/suites/paper.yaml --budget quick --logdir runs/paper-quick --jobs 2
+    run_experiments configs/suites/paper.yaml --budget paper --logdir /shared/paper \\
+        --backend ray --address HEAD:6379   # one Ray task per run: analysis/ray_backend.py
 
 Suite YAML (see ``configs/suites/paper.yaml``)::
 
@@ -289,7 +291,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("suite", type=Path, help="suite YAML (configs/suites/*.yaml)")
     p.add_argument("--budget", default="quick", help="budget named in the suite (quick, paper)")
     p.add_argument("--logdir", type=Path, help="default: runs/<suite>-<budget>")
-    p.add_argument("--jobs", type=int, default=None, help="runs at once (default: CPU cores)")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="local backend: runs at once (default: CPU cores)")
+    p.add_argument("--backend", choices=("local", "ray"), default="local",
+                   help="local: subprocesses on this machine; ray: one Ray task per run")
+    p.add_argument("--address", default=None,
+                   help="ray backend: an existing cluster (default: RAY_ADDRESS, else a local "
+                        "Ray started here); --logdir must then be shared by every node")
+    p.add_argument("--num-cpus", type=int, default=None,
+                   help="ray backend, local Ray only: CPUs it offers (default: all cores)")
     p.add_argument("--list", action="store_true", help="print the runs and their state, run none")
     args = p.parse_args(argv)
 
@@ -304,7 +314,12 @@ def main(argv: list[str] | None = None) -> int:
             for r in runs:
                 print(f"{run_state(r, logdir):8s} {r.name}")
             return 0
-        counts = run_suite(runs, logdir, args.jobs)
+        if args.backend == "ray":
+            from sdhn_train.analysis.ray_backend import run_suite_ray
+
+            counts = run_suite_ray(runs, logdir, args.address, num_cpus=args.num_cpus)
+        else:
+            counts = run_suite(runs, logdir, args.jobs)
     except (ExperimentError, ConfigError, OSError) as e:
         print(f"run_experiments: {e}", file=sys.stderr)
         return 2

@@ -98,12 +98,15 @@ def test_killed_ray_worker_resumes(suite: tuple[list[RunSpec], Path], tmp_path: 
     killed: list[str] = []
 
     def killer() -> None:
-        """SIGKILL the Ray worker of the first run with a checkpoint and no marker yet."""
+        """SIGKILL the Ray worker of the first run with a checkpoint before its budget (384)."""
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             for r in runs:
                 d = logdir / r.name
-                if (d / ATTEMPTS).exists() and any((d / "checkpoints").glob("*.json")) \
+                steps = [int(c.stem.split("_")[1]) for c in (d / "checkpoints").glob("*.json")]
+                # mid-run: a checkpoint to resume from, none yet at the budget (a run past its
+                # last checkpoint but before its DONE marker would resume at the final step)
+                if (d / ATTEMPTS).exists() and steps and max(steps) < 384 \
                         and not (d / DONE).exists():
                     pid = json.loads((d / ATTEMPTS).read_text().splitlines()[0])["pid"]
                     os.kill(pid, signal.SIGKILL)

@@ -74,7 +74,7 @@ def _same_as_local(runs: list[RunSpec], logdir: Path, ref: Path) -> None:
 
 
 def test_local_backend_does_not_import_ray() -> None:
-    code = ("import sys; from sdhn_train.analysis import experiments; "
+    code = ("import sys; from sdhn_train.analysis import experiments, experiments_cli; "
             "assert 'ray' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True,
                    env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})

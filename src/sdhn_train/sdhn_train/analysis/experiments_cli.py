@@ -1,0 +1,64 @@
+"""The ``run_experiments`` command: a suite on the local backend (``experiments.run_suite``) or
+on Ray (``ray_backend.run_suite_ray``). Kept apart from both so neither imports the other's
+caller. Usage: see ``sdhn_train.analysis.experiments``."""
+
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from sdhn_train.analysis import experiments
+from sdhn_train.analysis.experiments import ExperimentError, load_suite, run_state, run_suite
+from sdhn_train.config import ConfigError
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    p = argparse.ArgumentParser(prog="run_experiments", description=experiments.__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("suite", type=Path, help="suite YAML (configs/suites/*.yaml)")
+    p.add_argument("--budget", default="quick", help="budget named in the suite (quick, paper)")
+    p.add_argument("--logdir", type=Path, help="default: runs/<suite>-<budget>")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="local backend: runs at once (default: CPU cores)")
+    p.add_argument("--backend", choices=("local", "ray"), default="local",
+                   help="local: subprocesses on this machine; ray: one Ray task per run")
+    p.add_argument("--address", default=None,
+                   help="ray backend: an existing cluster (default: RAY_ADDRESS, else a local "
+                        "Ray started here); --logdir must then be shared by every node")
+    p.add_argument("--num-cpus", type=int, default=None,
+                   help="ray backend, local Ray only: CPUs it offers (default: all cores)")
+    p.add_argument("--list", action="store_true", help="print the runs and their state, run none")
+    args = p.parse_args(argv)
+
+    def _terminated(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt  # stop the runs this process started, then exit
+
+    signal.signal(signal.SIGTERM, _terminated)
+    try:
+        runs = load_suite(args.suite, args.budget)
+        logdir = args.logdir or Path("runs") / f"{runs[0].suite}-{args.budget}"
+        if args.list:
+            for r in runs:
+                print(f"{run_state(r, logdir):8s} {r.name}")
+            return 0
+        if args.backend == "ray":
+            from sdhn_train.analysis.ray_backend import run_suite_ray
+
+            counts = run_suite_ray(runs, logdir, args.address, num_cpus=args.num_cpus)
+        else:
+            counts = run_suite(runs, logdir, args.jobs)
+    except (ExperimentError, ConfigError, OSError) as e:
+        print(f"run_experiments: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("run_experiments: interrupted; rerun the same command to resume", file=sys.stderr)
+        return 130
+    return 1 if counts["failed"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -101,7 +101,8 @@ def test_resume_after_kill(tmp_path: Path) -> None:
     logdir = tmp_path / "logs"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     proc = subprocess.Popen([sys.executable, "-m", "sdhn_train.analysis.experiments_cli",
-                             str(suite), "--budget", "quick", "--logdir", str(logdir), "--jobs", "1"],
+                             str(suite), "--budget", "quick", "--logdir", str(logdir),
+                             "--jobs", "1"],
                             env=env, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     second_ckpt = logdir / names[1] / "checkpoints"

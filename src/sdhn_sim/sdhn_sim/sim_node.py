@@ -132,7 +132,7 @@ class SimNode(Node):
                     "starting episode 0")
                 self.t_start = self.t_last_log = now
                 self.events.write("started", robots=self.sim.num_robots,
-                                  reward=str(getattr(self.sim.env.env, "reward_name", "env")))
+                                  reward=self.sim.env.reward_name)
                 self.publish(self.sim.reset())
             elif now - self.t_start > self.cfg.start_timeout:
                 self.get_logger().error(

@@ -63,11 +63,6 @@ def evaluate_sets(envs: dict[str, BatchedEnv], actor: Actor, seed: int) -> dict[
     return out
 
 
-def reward_name(env: BatchedEnv) -> str:
-    """The name of the reward an environment pays (MAIF: ``corrected``/``reference``)."""
-    return str(getattr(env, "reward_name", "env"))
-
-
 def headline(metrics: dict[str, float]) -> str:
     """One line: success and makespan on both sets (NC where nothing completed), then return."""
     def ms(infix: str) -> str:

@@ -22,14 +22,14 @@ import torch
 import yaml
 
 from sdhn_policy.weights import atomic_write_bytes, save_actor_file
-from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
+from sdhn_sim.envs.api import BatchedEnv, EpisodeStats, reward_name
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import get_algorithm
 from sdhn_train.collector import RolloutCollector
 from sdhn_train.config import Config
 from sdhn_train.env_features import make_training_env, unwrap
 from sdhn_train.envinfo import EnvInfo
-from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs, reward_name
+from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs
 from sdhn_train.learners.base import Learner, NonFiniteLossError
 from sdhn_train.normalize import RewardNormalizer
 from sdhn_train.rollout import Rollout

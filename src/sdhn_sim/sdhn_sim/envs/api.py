@@ -65,3 +65,9 @@ class BatchedEnv(Protocol):
     def step(self, actions: npt.ArrayLike) -> StepResult:
         """Apply int actions [B, N]; out-of-range actions raise ValueError."""
         ...
+
+
+def reward_name(env: object) -> str:
+    """The name of the reward an environment pays (MAIF: ``corrected``/``reference``; ``env``
+    for environments with a single, built-in reward)."""
+    return str(getattr(env, "reward_name", "env"))

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from .api import BatchedEnv, EpisodeStats, FloatArray
+from .api import BatchedEnv, EpisodeStats, FloatArray, reward_name
 from .maif import MaifEnv, MaifWorld
 from .rware_env import RwareEnv
 
@@ -48,6 +48,7 @@ class SingleEnv:
         self.state_size = env.state_size
         self.num_actions = env.num_actions
         self.max_steps = env.max_steps
+        self.reward_name = reward_name(env)
         self._next: tuple[FloatArray, FloatArray] | None = None
         self._final_world: MaifWorld | None = None
         self._started = False

@@ -3,7 +3,6 @@ and an rclpy observer node that records what the graph publishes."""
 
 from __future__ import annotations
 
-import copy
 import signal
 import subprocess
 import sys
@@ -107,6 +106,7 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     import rclpy
     from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
+    from rclpy.qos import QoSProfile
 
     from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
     from sdhn_sim.ros.qos import STEP
@@ -114,8 +114,8 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     # The test process is a starved observer on a loaded machine: a reader history as deep as a
     # whole test run, so samples it is slow to take are never overwritten in its own cache
     # (otherwise it can miss an action the recording and the trainer both have).
-    STEP = copy.copy(STEP)
-    STEP.depth = 65536
+    qos = QoSProfile(history=STEP.history, depth=65536, reliability=STEP.reliability,
+                     durability=STEP.durability)
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("test_observer", context=context)
@@ -135,15 +135,15 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
         seen.state_count += 1
 
     subs = [node.create_subscription(RobotAction, topics.absolute(ns, topics.robot_action(i)),
-                                     on_action, STEP)
+                                     on_action, qos)
             for i in range(num_robots)]
     subs += [node.create_subscription(RobotObservation, topics.absolute(ns, topics.robot_obs(i)),
-                                      on_obs, STEP)
+                                      on_obs, qos)
              for i in range(num_robots)]
     subs.append(node.create_subscription(TeamState, topics.absolute(ns, topics.STATE), on_state,
-                                         STEP))
+                                         qos))
     subs.append(node.create_subscription(EpisodeSummary, topics.absolute(ns, topics.EPISODE),
-                                         seen.episodes.append, STEP))
+                                         seen.episodes.append, qos))
 
     def spin(seconds: float, until: Any = None) -> bool:
         end = time.monotonic() + seconds

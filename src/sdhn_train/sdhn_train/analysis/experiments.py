@@ -49,6 +49,7 @@ from sdhn_sim.envs.registry import env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.checkpoint import latest_checkpoint
 from sdhn_train.config import Config, ConfigError, set_field, validate
+from sdhn_train.evaluation import headline
 from sdhn_train.runs import PH_DIR
 
 DONE = "DONE.json"
@@ -206,7 +207,7 @@ def finish(run: RunSpec, logdir: Path, wall: float) -> dict[str, Any]:
     summary = json.loads((d / "summary.json").read_text()) if (d / "summary.json").exists() \
         else {}
     marker = {"run": run.name, "wall_seconds": round(wall, 1),
-              **{k: v for k, v in summary.items() if k.startswith("eval/")}}
+              **{k: v for k, v in summary.items() if k.startswith("eval/") or k == "reward"}}
     tmp = d / (DONE + ".tmp")
     tmp.write_text(json.dumps(marker, indent=1))
     tmp.replace(d / DONE)  # atomic: a marker is complete or absent
@@ -222,6 +223,16 @@ class _Running:
     proc: subprocess.Popen[bytes]
     log: Any
     start: float
+
+
+def result_line(marker: dict[str, Any]) -> str:
+    """A finished run in one line: success and makespan first where the task has them (MAIF),
+    then return under the reward it was trained with."""
+    reward = f" ({marker['reward']} reward)" if marker.get("reward") else ""
+    if "eval/success_rate" in marker:
+        return headline(marker) + reward
+    ret = marker.get("eval/episodic_return")
+    return f"return {ret:.2f}{reward}" if isinstance(ret, float) else "finished"
 
 
 def run_suite(runs: list[RunSpec], logdir: Path, jobs: int | None = None,
@@ -260,8 +271,7 @@ def run_suite(runs: list[RunSpec], logdir: Path, jobs: int | None = None,
                 if r.proc.returncode == 0:
                     marker = finish(r.run, logdir, wall)
                     counts["done"] += 1
-                    ret = marker.get("eval/episodic_return")
-                    result = f"eval return {ret:.2f}" if isinstance(ret, float) else "finished"
+                    result = result_line(marker)
                 else:
                     counts["failed"] += 1
                     result = (f"FAILED (exit {r.proc.returncode}; see "

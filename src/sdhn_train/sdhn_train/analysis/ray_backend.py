@@ -37,6 +37,7 @@ from sdhn_train.analysis.experiments import (
     RunSpec,
     finish,
     prepare,
+    result_line,
     run_state,
 )
 
@@ -140,8 +141,7 @@ def run_suite_ray(runs: list[RunSpec], logdir: Path, address: str | None = None,
                 cpu_seconds += res["wall"] * cpus[run.name]
                 if res["ok"]:
                     counts["done"] += 1
-                    ret = res["marker"].get("eval/episodic_return")
-                    result = f"eval return {ret:.2f}" if isinstance(ret, float) else "finished"
+                    result = result_line(res["marker"])
                 else:
                     counts["failed"] += 1
                     result = (f"FAILED ({res['rc']}; see {logdir / run.name / 'train.log'})")

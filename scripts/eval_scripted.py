@@ -12,35 +12,12 @@ under the named reward (second). See ``sdhn_sim.envs.maif_scripted``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
 
-import numpy as np
-
-from sdhn_sim.envs import make_env
-from sdhn_sim.envs.maif import MaifEnv
-from sdhn_sim.envs.maif_scripted import GreedyPolicy, PlannerPolicy, lower_bound, run_episodes
-
-
-def evaluate(name: str, which: str, policy: str, *, instances: int, seed: int,
-             reward: str) -> dict[str, object]:
-    env = make_env(name, num_envs=instances, seed=seed, instance_order="round_robin",
-                   instance_ids=list(range(instances)), instance_set=which, reward=reward)
-    assert isinstance(env, MaifEnv)
-    pol = GreedyPolicy(seed) if policy == "greedy" else PlannerPolicy(seed)
-    t0 = time.perf_counter()
-    eps = run_episodes(env, pol, seed=seed)
-    wall = time.perf_counter() - t0
-    env.reset(seed=seed)
-    done = [e.makespan for e in eps if e.makespan is not None]
-    return {"env": name, "set": which, "policy": policy,
-            "success_rate": float(np.mean([e.success for e in eps])),
-            "makespan": float(np.mean(done)) if done else "NC",
-            "lower_bound": lower_bound(env), "return": float(np.mean([e.episode_return
-                                                                      for e in eps])),
-            "reward": reward, "collisions": float(np.mean([e.collisions for e in eps])),
-            "wall_s": round(wall, 1)}
+from sdhn_sim.envs.maif_scripted import evaluate_scripted
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -54,17 +31,18 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     for which in ("train", "heldout"):
         for policy in args.policies.split(","):
-            r = evaluate(args.env, which, policy, instances=args.instances, seed=args.seed,
-                         reward=args.reward)
+            t0 = time.perf_counter()
+            r = evaluate_scripted(args.env, which, policy, instances=args.instances,
+                                  seed=args.seed, reward=args.reward)
+            wall = time.perf_counter() - t0
             if args.json:
-                print(json.dumps(r), flush=True)
+                print(json.dumps({**dataclasses.asdict(r), "wall_s": round(wall, 1)}), flush=True)
                 continue
-            ms = r["makespan"]
-            ms_s = ms if isinstance(ms, str) else f"{ms:.1f}"
-            print(f"{r['env']:10s} {which:8s} {policy:8s} success {r['success_rate']:.2f}  "
-                  f"makespan {ms_s:>5s}  (lower bound {r['lower_bound']:.1f})  "
-                  f"return {r['return']:.1f} ({args.reward})  collisions {r['collisions']:.1f}  "
-                  f"[{r['wall_s']} s]", flush=True)
+            ms = "NC" if r.makespan is None else f"{r.makespan:.1f}"
+            print(f"{r.task:10s} {which:8s} {policy:8s} success {r.success_rate:.2f}  "
+                  f"makespan {ms:>5s}  (lower bound {r.lower_bound:.1f})  "
+                  f"return {r.episode_return:.1f} ({r.reward})  collisions {r.collisions:.1f}  "
+                  f"[{wall:.1f} s]", flush=True)
     return 0
 
 

@@ -29,7 +29,7 @@ from sdhn_policy.weights import save_actor_file
 from sdhn_sim.envs import make_env
 from sdhn_sim.envs.api import EpisodeStats
 from sdhn_sim.envs.maif import MaifEnv
-from sdhn_sim.envs.maif_scripted import GreedyPolicy, PlannerPolicy, lower_bound, run_episodes
+from sdhn_sim.envs.maif_scripted import evaluate_scripted
 
 SETS = ("train", "heldout")
 
@@ -97,12 +97,14 @@ def main(argv: list[str] | None = None) -> int:
             assert isinstance(e, MaifEnv)
             return e
         results[f"policy/{which}"] = summarise(run_actor(rt, env(), args.seed))
-        for name, pol in (("greedy", GreedyPolicy(args.seed)),
-                          ("planner", PlannerPolicy(args.seed))):
-            results[f"{name}/{which}"] = summarise(run_episodes(env(), pol, seed=args.seed))
-        fresh = env()
-        fresh.reset(seed=args.seed)  # the instances' start positions, for the bound
-        results[f"lower_bound/{which}"] = {"makespan": round(lower_bound(fresh), 2)}
+        for name in ("greedy", "planner"):
+            r = evaluate_scripted(env_name, which, name, instances=k, seed=args.seed,
+                                  reward=reward)
+            results[f"{name}/{which}"] = {
+                "success_rate": r.success_rate,
+                "makespan": "NC" if r.makespan is None else round(r.makespan, 2),
+                "return": round(r.episode_return, 2), "collisions": round(r.collisions, 2)}
+        results[f"lower_bound/{which}"] = {"makespan": round(r.lower_bound, 2)}
         print(f"[ship] {which}: policy {results[f'policy/{which}']}", flush=True)
 
     args.out.mkdir(parents=True, exist_ok=True)

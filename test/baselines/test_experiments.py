@@ -147,6 +147,6 @@ def test_quick_suite_and_figures(tmp_path: Path) -> None:
                          timeout=600, check=False)
     assert res.returncode == 0, res.stderr[-3000:]
     assert len(list(logdir.glob(f"*/{DONE}"))) == 7, res.stderr[-3000:]
-    written = {p.name for p in make_figures(logdir, tmp_path / "fig")}
-    assert {"returns.png", "makespan.png", "skewness.png", "ablation_maif-tiny.png",
+    written = {p.name for p in make_figures(logdir, tmp_path / "fig", scripted_instances=4)}
+    assert {"success.png", "returns.png", "makespan.png", "skewness.png", "ablation_maif-tiny.png",
             "ph_heatmap_maif-tiny.png", "results.md"} <= written, written

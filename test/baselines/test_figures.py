@@ -87,18 +87,36 @@ def logdir(tmp_path: Path) -> Path:
 
 def test_every_figure_and_table(logdir: Path, tmp_path: Path) -> None:
     out = tmp_path / "fig"
-    written = {p.name for p in make_figures(logdir, out)}
-    expected = {"returns.png", "makespan.png", "skewness.png", "ablation_maif-10.png",
-                "ph_heatmap_maif-10.png", "results.md"}
+    written = {p.name for p in make_figures(logdir, out, scripted_instances=4)}
+    expected = {"success.png", "returns.png", "makespan.png", "skewness.png",
+                "ablation_maif-10.png", "ph_heatmap_maif-10.png", "results.md"}
     assert expected <= written, f"missing {expected - written}; wrote {sorted(written)}"
     for name in expected:
         assert (out / name).stat().st_size > 0, name
     table = (out / "results.md").read_text()
     for label in ("SDHN", "MAPPO", "QMIX", "DICG", "HGCN-MIX", "w/o L_{Sk}", "w/o SHR"):
         assert label in table, f"{label} missing from:\n{table}"
-    qmix_row = next(line for line in table.splitlines() if "| maif-10 | QMIX |" in line)
-    assert qmix_row.endswith("| NC |"), qmix_row  # never completed -> NC, not a number
-    assert "Skipped" not in table, table
+    header = next(line for line in table.splitlines() if line.startswith("| task |"))
+    cols = [c.strip() for c in header.strip("|").split("|")]
+    # success and makespan come before return, and the return names its reward
+    assert cols.index("success") < cols.index("makespan") < cols.index("greedy return (reward)")
+
+    def row(task: str, method: str) -> dict[str, str]:
+        line = next(ln for ln in table.splitlines() if ln.startswith(f"| {task} | {method} |"))
+        return dict(zip(cols, [c.strip() for c in line.strip("|").split("|")], strict=True))
+
+    qmix = row("maif-10", "QMIX")  # never completed -> NC, not a number
+    assert (qmix["makespan"], qmix["held-out makespan"]) == ("NC", "NC"), qmix
+    assert qmix["greedy return (reward)"].endswith("(corrected)"), qmix
+    assert row("rware-3", "SDHN")["greedy return (reward)"].endswith("(rware)")
+    # the scripted baselines are rows of every MAIF task (played here on 4 instances), not RWARE
+    for task in ("maif-10", "maif-16"):
+        planner = row(task, "scripted planner (centralised)")
+        assert float(planner["success"]) == 1.0, planner
+        greedy = row(task, "scripted greedy (decentralised)")
+        assert greedy["makespan"] == "NC" or float(greedy["makespan"]) >= float(
+            planner["makespan"]), (greedy, planner)
+    assert "| rware-3 | scripted" not in table
 
 
 def test_ph_snapshot_only_for_hypergraph_critics(tmp_path: Path) -> None:
@@ -156,4 +174,5 @@ def test_skewness_target_comes_from_each_runs_config(tmp_path: Path) -> None:
     cfg_file.write_text(yaml.safe_dump(cfg))
     by_method = {r.method: r for r in load_runs(root)}
     assert lambda_sk(by_method["sdhn"]) == 0.25, "lambda_Sk must be read from the run's config"
-    assert "skewness.png" in {p.name for p in make_figures(root, tmp_path / "fig")}
+    assert "skewness.png" in {p.name for p in make_figures(root, tmp_path / "fig",
+                                                           scripted_instances=4)}

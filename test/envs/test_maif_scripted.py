@@ -4,6 +4,7 @@ decentralised greedy policy completes most instances from its own observations o
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from sdhn_sim.envs import make_env
 from sdhn_sim.envs.maif_scripted import (
@@ -82,3 +83,18 @@ def test_bfs_distances_go_around_walls():
     free[1:, 2] = False
     d = bfs_distances(free, 4, 4)
     assert d[4, 0] == 4 + 4 + 4 and d[4, 4] == 0
+
+
+def test_evaluate_scripted_reports_success_then_makespan_against_the_bound() -> None:
+    from sdhn_sim.envs.maif_scripted import evaluate_scripted
+
+    planner = evaluate_scripted("maif-tiny", "heldout", "planner", instances=6, seed=0)
+    greedy = evaluate_scripted("maif-tiny", "heldout", "greedy", instances=6, seed=0)
+    assert planner.success_rate == 1.0 and planner.makespan is not None
+    assert planner.makespan >= planner.lower_bound == greedy.lower_bound
+    assert greedy.makespan is None or greedy.makespan >= planner.lower_bound
+    assert planner.reward == "corrected" and planner.instance_set == "heldout"
+    with pytest.raises(ValueError, match="unknown scripted policy"):
+        evaluate_scripted("maif-tiny", "train", "astar", instances=2)
+    with pytest.raises(ValueError, match="not a MAIF task"):
+        evaluate_scripted("rware-3", "train", "greedy", instances=2)

@@ -193,3 +193,26 @@ def test_bad_input_is_one_line_and_exit_2(case: str, tmp_path: Path) -> None:
 def test_debug_shows_the_traceback(tmp_path: Path) -> None:
     r = train("--seed", "-1", "--debug", "--set", f"log.root={tmp_path}", "--print-config")
     assert r.returncode != 0 and "Traceback" in r.stderr and "train.seed" in r.stderr
+
+
+def test_missing_warm_start_is_one_line_and_a_resume_does_not_need_it(tmp_path: Path) -> None:
+    """actor.init_from is checked before anything starts; once a run has a checkpoint its actor
+    comes from there, so resuming it elsewhere (the warm-start file gone) works and keeps the
+    field in the run's config as provenance."""
+    r = train(*SMALL, "--set", f"log.root={tmp_path}", "--set", "actor.init_from=gone.safetensors")
+    assert r.returncode == 2 and "actor.init_from" in one_line(r.stderr), r.stderr
+    assert not any(tmp_path.iterdir()), "a refused config must not create a run directory"
+    warm = tmp_path / "warm"
+    warm.mkdir()
+    for suffix in (".safetensors", ".json"):
+        src = Path(__file__).parents[2] / "models" / "maif-solo-mappo" / f"actor{suffix}"
+        (warm / f"actor{suffix}").write_bytes(src.read_bytes())
+    r = train(*SMALL, "--set", f"log.root={tmp_path}", "--run-name", "w", "--total-steps", "128",
+              "--set", f"actor.init_from={warm / 'actor.safetensors'}")
+    assert r.returncode == 0, r.stderr
+    for f in warm.iterdir():
+        f.unlink()
+    r = train("--resume", str(tmp_path / "w"), "--total-steps", "256", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "w" / "summary.json").read_text())["global_step"] == 256
+    assert str(warm / "actor.safetensors") in (tmp_path / "w" / "config.yaml").read_text()

@@ -85,7 +85,7 @@ def config_from_args(args: argparse.Namespace, base: dict[str, Any] | None = Non
         set_field(cfg, key.strip(), value.strip())
     if args.no_progress:
         cfg.log.progress = False
-    validate(cfg)
+    validate(cfg, resuming=base is not None)
     return cfg
 
 
@@ -155,7 +155,9 @@ def _main(args: argparse.Namespace) -> int:
                                  or any((run_dir / f).exists() for f in RUN_FILES)):
             raise ConfigError(f"log.run_name: run directory {run_dir} already holds a run; "
                               "choose another name or --resume it")
-    trainer = Trainer(cfg, run_dir=run_dir)
+    # A resumed run's actor comes from its checkpoint: its warm-start file (kept in the config
+    # as provenance) is neither needed nor read.
+    trainer = Trainer(cfg, run_dir=run_dir, warm_start=resume is None)
     return trainer.run(resume=resume)
 
 

@@ -138,8 +138,9 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def validate(cfg: Config) -> None:
-    """Reject bad values before anything starts (ConfigError naming field and allowed values)."""
+def validate(cfg: Config, resuming: bool = False) -> None:
+    """Reject bad values before anything starts (ConfigError naming field and allowed values).
+    ``resuming``: the weights come from a checkpoint, so ``actor.init_from`` need not exist."""
     envs = env_names()
     need(cfg.env.name in envs, "env.name", ", ".join(envs), cfg.env.name)
     need(cfg.algo.name in ALGO_NAMES, "algo.name", ", ".join(ALGO_NAMES), cfg.algo.name)
@@ -169,6 +170,12 @@ def validate(cfg: Config) -> None:
          f"1..env.num_envs ({cfg.env.num_envs})", cfg.ppo.num_minibatches)
     need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",
          cfg.actor.hidden_sizes)
+    # A missing warm-start file is refused here, not after the environments are built.
+    if cfg.actor.init_from is not None and not resuming:
+        init = Path(cfg.actor.init_from)
+        need(init.is_file() and init.with_suffix(".json").is_file(), "actor.init_from",
+             "an exported actor: a .safetensors file beside its .json (relative paths from "
+             "the current directory)", cfg.actor.init_from)
 
 
 def describe() -> str:

@@ -60,7 +60,7 @@ def default_run_dir(cfg: Config) -> Path:
 
 class Trainer:
     def __init__(self, cfg: Config, env_factory: EnvFactory = default_env_factory,
-                 run_dir: Path | None = None) -> None:
+                 run_dir: Path | None = None, warm_start: bool = True) -> None:
         self.cfg = cfg
         self.np_rng = seed_everything(cfg.train.seed, cfg.train.deterministic, cfg.train.threads)
         self.env = make_training_env(cfg, env_factory, cfg.env.num_envs, cfg.train.seed)
@@ -68,7 +68,7 @@ class Trainer:
         self.eval_env = self.eval_envs.get("")
         self.learner: Learner = get_algorithm(cfg.algo.name).build_learner(
             cfg, EnvInfo.of(self.env), self.np_rng)
-        if cfg.actor.init_from:  # warm start from an exported actor
+        if cfg.actor.init_from and warm_start:  # warm start from an exported actor
             load_actor_into(self.learner.actor, cfg.actor.init_from)
         self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len,
                                           self.learner.sample_actions)

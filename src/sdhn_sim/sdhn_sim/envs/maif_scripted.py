@@ -15,6 +15,9 @@
 ``run_episodes(env, policy)`` plays one episode in each of the B environments and returns their
 ``EpisodeStats`` (use ``instance_order="round_robin"`` and B = number of instances to cover a set).
 ``lower_bound(env)`` is the mean over the B instances of the longest single-robot shortest path.
+``evaluate_scripted(task, which, policy)`` does all of it on instances 0..k-1 of one instance set:
+the one evaluation behind ``scripts/eval_scripted.py``, ``scripts/ship_model.py`` and the scripted
+rows of ``make_figures``.
 """
 
 from __future__ import annotations
@@ -22,12 +25,15 @@ from __future__ import annotations
 import heapq
 import itertools
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
 from .api import EpisodeStats, FloatArray, IntArray
 from .maif import ACTION_DELTAS, COORD_FEATURES, WINDOW, MaifEnv
+from .maif_instances import MAIF_CONFIGS
+from .registry import make_env
 
 _CENTRE = (WINDOW * WINDOW) // 2
 # flat window index of the cell each action (stay, up, down, left, right) leads to
@@ -256,3 +262,46 @@ def lower_bound(env: MaifEnv) -> float:
             longest = max(longest, int(bfs_distances(free, gx, gy)[sy, sx]))
         out.append(longest)
     return float(np.mean(out))
+
+
+SCRIPTED_LABELS = {"greedy": "scripted greedy (decentralised)",
+                   "planner": "scripted planner (centralised)"}
+
+
+@dataclass(frozen=True)
+class ScriptedResult:
+    """A scripted policy on one instance set: success and makespan first (makespan None = NC,
+    no episode completed), then the return under the reward named."""
+
+    task: str
+    instance_set: str
+    policy: str
+    success_rate: float
+    makespan: float | None
+    lower_bound: float
+    episode_return: float
+    reward: str
+    collisions: float
+
+
+def evaluate_scripted(task: str, which: str, policy: str, *, instances: int = 100, seed: int = 0,
+                      reward: str = "corrected") -> ScriptedResult:
+    """One episode per instance 0..instances-1 of set ``which`` ("train" or "heldout") at the
+    task's own step limit, played by ``policy`` ("greedy" or "planner")."""
+    if policy not in SCRIPTED_LABELS:
+        raise ValueError(f"unknown scripted policy {policy!r}; known: {list(SCRIPTED_LABELS)}")
+    if task not in MAIF_CONFIGS:
+        raise ValueError(f"{task} is not a MAIF task: the scripted baselines play MAIF only")
+    env = make_env(task, num_envs=instances, seed=seed, instance_order="round_robin",
+                   instance_ids=list(range(instances)), instance_set=which, reward=reward)
+    assert isinstance(env, MaifEnv)
+    pol = GreedyPolicy(seed) if policy == "greedy" else PlannerPolicy(seed)
+    eps = run_episodes(env, pol, seed=seed)
+    env.reset(seed=seed)  # back to the instances' start positions, for the bound
+    done = [e.makespan for e in eps if e.makespan is not None]
+    return ScriptedResult(
+        task=task, instance_set=which, policy=policy,
+        success_rate=float(np.mean([e.success for e in eps])),
+        makespan=float(np.mean(done)) if done else None, lower_bound=lower_bound(env),
+        episode_return=float(np.mean([e.episode_return for e in eps])), reward=reward,
+        collisions=float(np.mean([e.collisions for e in eps])))

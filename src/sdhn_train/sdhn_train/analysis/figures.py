@@ -9,13 +9,20 @@ A run's method label is ``run.json``'s, else derived from its config (``sdhn_wo_
 sdhn with ``sdhn.skew_loss: false``, ``sdhn_wo_shr`` = with ``sdhn.stochastic_hyperedges: false``).
 Written to OUTDIR (a figure whose data are absent is skipped and listed in results.md):
 
-- ``returns.png``: training return (``charts/episodic_return``) per task, mean and +-1 std over
-  seeds per method (paper Fig. "Performance of SDHN and baselines");
-- ``makespan.png``: final greedy makespan vs robot count on MAIF, NC where no seed completed;
+- ``success.png`` (MAIF): greedy success rate on the training and the held-out instances over
+  training, per method, with the scripted baselines' success as horizontal lines;
+- ``returns.png``: training return (``charts/episodic_return``, under the reward named on the
+  axis) per task, mean and +-1 std over seeds per method (paper Fig. "Performance of SDHN and
+  baselines");
+- ``makespan.png``: final greedy makespan vs robot count on MAIF, NC where no seed completed, with
+  the scripted planner's and greedy policy's makespan marked;
 - ``ablation_<task>.png``: SDHN vs w/o L_Sk and vs w/o stochastic hyperedges;
 - ``ph_heatmap_<task>.png``: P_H (N x M) of SDHN trained with and without L_Sk;
 - ``skewness.png``: Sk of the sampled hypergraphs (``hypergraph/skewness``) over training;
-- ``results.md``: final greedy return, success rate and makespan per task x method.
+- ``results.md``: per task x method, final greedy success rate and makespan on the training and
+  the held-out instances first, then return under the reward named; on MAIF the scripted
+  baselines (``sdhn_sim.envs.maif_scripted``, evaluated here on the runs' evaluation instances)
+  are rows of the table.
 Refuses (FigureError) a LOGDIR that is empty, holds something that is not a run, names one
 (task, method, seed) twice, or mixes budgets or suites within a task.
 """
@@ -32,6 +39,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from sdhn_sim.envs.maif_scripted import SCRIPTED_LABELS, ScriptedResult, evaluate_scripted
 from sdhn_sim.envs.registry import env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.runs import PH_DIR
@@ -54,7 +62,8 @@ def method_order() -> tuple[str, ...]:
 METHOD_LABEL = {"sdhn": "SDHN", "mappo": "MAPPO", "qmix": "QMIX", "dicg": "DICG",
                 "hgcn_mix": "HGCN-MIX", "sdhn_wo_lsk": "SDHN w/o $L_{Sk}$",
                 "sdhn_wo_shr": "SDHN w/o SHR"}
-BUDGET_KEYS = (("train", "total_steps"), ("env", "max_steps"))
+BUDGET_KEYS = (("train", "total_steps"), ("env", "max_steps"), ("env", "reward"))
+SETS = (("", "train"), ("heldout_", "heldout"))  # (metric tag infix, instance set)
 
 
 class FigureError(ValueError):
@@ -77,6 +86,13 @@ class Run:
     def final(self, tag: str) -> float | None:
         s = self.series.get(tag)
         return float(s[1][-1]) if s is not None and len(s[0]) else None
+
+    @property
+    def reward(self) -> str:
+        """The reward the run was trained and evaluated with (MAIF names two; RWARE has one)."""
+        if self.task.startswith("maif"):
+            return str(self.config["env"].get("reward", "corrected"))
+        return "rware"
 
     def final_eval_step(self) -> int | None:
         s = self.series.get("eval/episodic_return")
@@ -148,11 +164,11 @@ def load_runs(logdir: Path) -> list[Run]:
         raise FigureError(f"{logdir} mixes suites {sorted(suites)}")
     by_task: dict[str, dict[tuple[Any, ...], list[str]]] = defaultdict(lambda: defaultdict(list))
     for r in runs:
-        budget = tuple(r.config[a][b] for a, b in BUDGET_KEYS)
+        budget = tuple(r.config[a].get(b) for a, b in BUDGET_KEYS)
         by_task[r.task][budget].append(r.path.name)
     for task, budgets in by_task.items():
         if len(budgets) > 1:
-            desc = "; ".join(f"{dict(zip(['total_steps', 'max_steps'], b, strict=True))}: "
+            desc = "; ".join(f"{dict(zip([k for _, k in BUDGET_KEYS], b, strict=True))}: "
                              f"{', '.join(names[:3])}" for b, names in budgets.items())
             raise FigureError(f"{logdir} mixes budgets on {task}: {desc}")
     return runs
@@ -180,6 +196,24 @@ def seed_curves(runs: list[Run], tag: str, points: int = 100,
         sm[: k - 1] = np.cumsum(vals[: k - 1]) / np.arange(1, k)
         out.append(np.interp(grid, steps, sm))
     return grid, np.array(out)
+
+
+Scripted = dict[str, dict[tuple[str, str], ScriptedResult]]  # task -> (policy, set) -> result
+
+
+def scripted_baselines(runs: list[Run], instances: int | None = None) -> Scripted:
+    """The scripted greedy policy and planner on every MAIF task of ``runs``, on the instances,
+    seed and reward the runs were evaluated with (``instances`` overrides the count)."""
+    out: Scripted = {}
+    for task, group in _by(runs, "task").items():
+        if not task.startswith("maif"):
+            continue
+        k = instances or min(int(r.config.get("eval", {}).get("instances", 100)) for r in group)
+        seed = int(group[0].config.get("eval", {}).get("seed", 0))
+        out[task] = {(policy, which): evaluate_scripted(task, which, policy, instances=k,
+                                                        seed=seed, reward=group[0].reward)
+                     for policy in SCRIPTED_LABELS for _, which in SETS}
+    return out
 
 
 # --- figures ----------------------------------------------------------------------------------
@@ -228,6 +262,36 @@ def _by(runs: list[Run], *attrs: str) -> dict[Any, list[Run]]:
     return out
 
 
+def fig_success(runs: list[Run], out: Path, scripted: Scripted) -> Path | None:
+    """Greedy success rate over training on the training (top) and held-out (bottom) instances,
+    per MAIF task, with the scripted baselines as horizontal lines."""
+    maif = [r for r in runs if "eval/success_rate" in r.series and r.task.startswith("maif")]
+    tasks = _ordered(_by(maif, "task"), task_order())
+    if not tasks:
+        return None
+    plt = _plt()
+    fig, axes = plt.subplots(2, len(tasks), figsize=(4.6 * len(tasks), 6.4), squeeze=False)
+    for col, task in enumerate(tasks):
+        group = _by([r for r in maif if r.task == task], "method")
+        for row, (infix, which) in enumerate(SETS):
+            ax = axes[row][col]
+            _curves(ax, group, f"eval/{infix}success_rate",
+                    f"{task}: {'held-out' if infix else 'training'} instances")
+            for policy, style in (("planner", "--"), ("greedy", ":")):
+                res = scripted.get(task, {}).get((policy, which))
+                if res is not None:
+                    ax.axhline(res.success_rate, color="k", lw=1.0, ls=style,
+                               label=SCRIPTED_LABELS[policy])
+            ax.set_ylim(-0.03, 1.03)
+            ax.set_ylabel(f"greedy success rate ({group[next(iter(group))][0].reward} reward)")
+            ax.legend(fontsize=6)
+    fig.tight_layout()
+    path = out / "success.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def fig_returns(runs: list[Run], out: Path) -> Path | None:
     main = [r for r in runs if r.method not in ABLATIONS]
     tasks = _ordered(_by(main, "task"), task_order())
@@ -235,9 +299,9 @@ def fig_returns(runs: list[Run], out: Path) -> Path | None:
         return None
     fig, axes = _grid(len(tasks))
     for ax, task in zip(axes, tasks, strict=True):
-        _curves(ax, _by([r for r in main if r.task == task], "method"), "charts/episodic_return",
-                task)
-        ax.set_ylabel("episode return")
+        group = [r for r in main if r.task == task]
+        _curves(ax, _by(group, "method"), "charts/episodic_return", task)
+        ax.set_ylabel(f"episode return ({group[0].reward} reward)")
     fig.tight_layout()
     path = out / "returns.png"
     fig.savefig(path, dpi=120)
@@ -257,20 +321,23 @@ def num_robots(run: Run) -> int:
     return MAIF_CONFIGS[run.task].num_robots
 
 
-def final_makespan(runs: list[Run]) -> tuple[float | None, list[float]]:
+def final_makespan(runs: list[Run], infix: str = "") -> tuple[float | None, list[float]]:
     """(mean makespan over seeds whose final greedy evaluation completed any episode, or None =
-    NC; the per-seed values). Falls back to training episodes where a run has no evaluation."""
+    NC; the per-seed values) on the training (``infix`` "") or held-out ("heldout_") instances.
+    Falls back to training episodes where a run has no evaluation (training set only)."""
     vals = []
     for r in runs:
         prefix = "eval" if r.final_eval_step() is not None else "charts"
-        succ = r.final(f"{prefix}/success_rate")
-        ms = r.series.get(f"{prefix}/makespan")
+        if prefix == "charts" and infix:
+            continue
+        succ = r.final(f"{prefix}/{infix}success_rate")
+        ms = r.series.get(f"{prefix}/{infix}makespan")
         if succ and ms is not None and len(ms[0]):
             vals.append(float(ms[1][-1]))
     return (float(np.mean(vals)) if vals else None), vals
 
 
-def fig_makespan(runs: list[Run], out: Path) -> Path | None:
+def fig_makespan(runs: list[Run], out: Path, scripted: Scripted) -> Path | None:
     maif = [r for r in runs if r.task.startswith("maif-") and r.task != "maif-tiny"
             and r.method not in ABLATIONS]
     if not maif:
@@ -299,7 +366,17 @@ def fig_makespan(runs: list[Run], out: Path) -> Path | None:
                    label=METHOD_LABEL.get(method, method) if i == 0 or not ax.patches else None)
             tops.append(mean)
     handles = [plt.Rectangle((0, 0), 1, 1, color=f"C{j}") for j in range(len(methods))]
-    ax.legend(handles, [METHOD_LABEL.get(m, m) for m in methods], fontsize=7)
+    labels = [METHOD_LABEL.get(m, m) for m in methods]
+    for policy, style in (("planner", "--"), ("greedy", ":")):
+        for i, task in enumerate(tasks):  # the training set's, as the bars
+            res = scripted.get(task, {}).get((policy, "train"))
+            if res is not None and res.makespan is not None:
+                line = ax.hlines(res.makespan, i - 0.45, i + 0.45, colors="k", lw=1.2,
+                                 linestyles=style)
+        if any((policy, "train") in scripted.get(t, {}) for t in tasks):
+            handles.append(line)
+            labels.append(SCRIPTED_LABELS[policy])
+    ax.legend(handles, labels, fontsize=7)
     ax.set_xticks(range(len(tasks)),
                   [f"{num_robots(_by(maif, 'task')[t][0])} robots" for t in tasks])
     ax.set_ylabel("makespan (steps; NC = not completed)")
@@ -325,7 +402,7 @@ def fig_ablations(runs: list[Run], out: Path) -> list[Path]:
         for ax, (abl, title) in zip(axes, panels, strict=True):
             _curves(ax, {"sdhn": group["sdhn"], abl: group[abl]}, "charts/episodic_return",
                     f"{task}: {title}")
-            ax.set_ylabel("episode return")
+            ax.set_ylabel(f"episode return ({group['sdhn'][0].reward} reward)")
         fig.tight_layout()
         path = out / f"ablation_{task}.png"
         fig.savefig(path, dpi=120)
@@ -404,34 +481,56 @@ def _fmt(vals: list[float], digits: int = 1) -> str:
     return f"{np.mean(vals):.{digits}f} ± {np.std(vals):.{digits}f}"
 
 
-def results_table(runs: list[Run]) -> str:
-    lines = ["| task | method | seeds | steps | greedy return | success rate | makespan |",
-             "|---|---|---|---|---|---|---|"]
+def _ms(mean: float | None, vals: list[float]) -> str:
+    return "NC" if mean is None else _fmt(vals)
+
+
+def results_table(runs: list[Run], scripted: Scripted | None = None) -> str:
+    """Success and makespan on both instance sets first, return (reward named) last; on MAIF
+    the scripted baselines as rows."""
+    lines = ["| task | method | seeds | steps | success | makespan | held-out success | "
+             "held-out makespan | greedy return (reward) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     by_task = _by(runs, "task")
     for task in _ordered(by_task, task_order()):
         by_method = _by(by_task[task], "method")
         for method in _ordered(by_method, method_order()):
             group = by_method[method]
             prefix = "eval" if all(r.final_eval_step() is not None for r in group) else "charts"
+            cells = []
+            for infix, _ in SETS:
+                succ = [v for r in group
+                        if (v := r.final(f"{prefix}/{infix}success_rate")) is not None]
+                cells += [_fmt(succ, 2), _ms(*final_makespan(group, infix))]
             rets = [v for r in group if (v := r.final(f"{prefix}/episodic_return")) is not None]
-            succ = [v for r in group if (v := r.final(f"{prefix}/success_rate")) is not None]
-            mean, ms = final_makespan(group)
             steps = max(int(s[0][-1]) for r in group for s in r.series.values() if len(s[0]))
             lines.append(f"| {task} | {METHOD_LABEL.get(method, method).replace('$', '')} | "
-                         f"{len(group)} | {steps} | {_fmt(rets)} | {_fmt(succ, 2)} | "
-                         f"{'NC' if mean is None else _fmt(ms)} |")
+                         f"{len(group)} | {steps} | {' | '.join(cells)} | "
+                         f"{_fmt(rets)} ({group[0].reward}) |")
+        for policy, label in SCRIPTED_LABELS.items():
+            got = [(scripted or {}).get(task, {}).get((policy, which)) for _, which in SETS]
+            if any(g is None for g in got):
+                continue
+            cells = [f"{g.success_rate:.2f} | {'NC' if g.makespan is None else f'{g.makespan:.1f}'}"
+                     for g in got if g is not None]
+            ret = got[0].episode_return if got[0] is not None else float("nan")
+            lines.append(f"| {task} | {label} | - | - | {' | '.join(cells)} | "
+                         f"{ret:.1f} ({got[0].reward if got[0] else '-'}) |")
     return "\n".join(lines)
 
 
-def make_figures(logdir: Path, outdir: Path) -> list[Path]:
-    """Every figure and the table; returns the files written."""
+def make_figures(logdir: Path, outdir: Path, scripted_instances: int | None = None) -> list[Path]:
+    """Every figure and the table; returns the files written. ``scripted_instances`` overrides
+    how many evaluation instances the scripted baselines play (default: the runs')."""
     runs = load_runs(logdir)
     outdir.mkdir(parents=True, exist_ok=True)
+    scripted = scripted_baselines(runs, scripted_instances)
     written: list[Path] = []
     skipped: list[str] = []
-    for name, fn in (("returns", fig_returns), ("makespan", fig_makespan),
-                     ("skewness", fig_skewness)):
-        p = fn(runs, outdir)
+    for name, p in (("success", fig_success(runs, outdir, scripted)),
+                    ("returns", fig_returns(runs, outdir)),
+                    ("makespan", fig_makespan(runs, outdir, scripted)),
+                    ("skewness", fig_skewness(runs, outdir))):
         if p is None:
             skipped.append(name)
         else:
@@ -442,9 +541,11 @@ def make_figures(logdir: Path, outdir: Path) -> list[Path]:
         if not ps:
             skipped.append(name)
     md = [f"# Results from {logdir}", "",
-          "Greedy return / success / makespan: final greedy evaluation (training episodes where a "
-          "run has none); mean ± std over seeds; makespan over seeds that completed; NC = no "
-          "seed completed.", "", results_table(runs), ""]
+          "Success rate and makespan (steps to complete the formation), then return: final greedy "
+          "evaluation on the training and the held-out instances (training episodes where a run "
+          "has none); mean ± std over seeds; makespan over seeds that completed; NC = no seed "
+          "completed. The scripted rows (MAIF) play the same instances.", "",
+          results_table(runs, scripted), ""]
     md += ["Figures: " + ", ".join(p.name for p in written), ""]
     if skipped:
         md += [f"Skipped (no data in the logs): {', '.join(skipped)}", ""]
@@ -461,9 +562,11 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("logdir", type=Path)
     p.add_argument("outdir", type=Path)
+    p.add_argument("--scripted-instances", type=int, default=None,
+                   help="instances the scripted baselines play (default: the runs' eval.instances)")
     args = p.parse_args(argv)
     try:
-        written = make_figures(args.logdir, args.outdir)
+        written = make_figures(args.logdir, args.outdir, args.scripted_instances)
     except FigureError as e:
         print(f"make_figures: {e}", file=sys.stderr)
         return 2

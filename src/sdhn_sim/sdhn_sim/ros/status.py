@@ -7,7 +7,8 @@
 - Events file: the simulator's ``events_file`` parameter names a JSON-lines file it appends to:
   ``{"event": "started"}`` when every actor matched, ``{"event": "progress", "episode", "step",
   "steps_per_s", "missed"}`` every few seconds, ``{"event": "episode", ...}`` with every field of
-  :class:`sdhn_sim.lockstep.EpisodeResult` per finished episode, ``{"event": "done", ...}``.
+  :class:`sdhn_sim.lockstep.EpisodeResult` per finished episode, ``{"event": "done", ...}``,
+  and ``{"event": "stopped", "steps", "missed", "drops"}`` when it stops, however (its totals).
   :class:`EventReader` reads what was appended since its last call.
 - Status file: a node with counters the launcher shows (the trainer: transitions, drops per
   cause) rewrites ``<name>.status.json`` next to its ready file (:func:`write_status`, atomic);

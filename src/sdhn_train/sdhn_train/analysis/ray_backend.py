@@ -14,7 +14,7 @@ writes ``DONE.json`` atomically. A task whose worker dies (SIGKILL, node lost) i
 and resumes from the last checkpoint. Two attempts never write the same run at once: each holds
 an exclusive ``flock`` on ``LOGDIR/.<run>.lock``, inherited by its training process, so a retry
 waits until the previous training process is gone. Every attempt appends a line to the run's
-``attempts.jsonl`` (host, pid, the step it resumed from).
+``attempts.jsonl`` (host, Ray node id, pid, the step it resumed from).
 
 Ray is imported only here, and only by ``--backend ray``.
 """
@@ -69,8 +69,8 @@ def run_one(spec: dict[str, Any], logdir: str) -> dict[str, Any]:
         if "--resume" in cmd:
             ckpt = Path(cmd[cmd.index("--resume") + 1])
             resume_step = int(json.loads(ckpt.with_suffix(".json").read_text())["global_step"])
-        attempt = {"host": socket.gethostname(), "pid": os.getpid(), "time": time.time(),
-                   "resume_step": resume_step}
+        attempt = {"host": socket.gethostname(), "node": _ray_node(), "pid": os.getpid(),
+                   "time": time.time(), "resume_step": resume_step}
         with open(d / ATTEMPTS, "a") as f:
             f.write(json.dumps(attempt) + "\n")
         env = dict(os.environ)
@@ -85,6 +85,13 @@ def run_one(spec: dict[str, Any], logdir: str) -> dict[str, Any]:
         if rc != 0:
             return {"run": run.name, "ok": False, "wall": wall, "rc": rc}
         return {"run": run.name, "ok": True, "wall": wall, "marker": finish(run, root, wall)}
+
+
+def _ray_node() -> str | None:
+    """The Ray node this attempt runs on (None when called outside Ray)."""
+    import ray
+
+    return ray.get_runtime_context().get_node_id() if ray.is_initialized() else None
 
 
 def _fmt_time(seconds: float) -> str:

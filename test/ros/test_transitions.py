@@ -304,5 +304,5 @@ def test_stream_learner_warm_starts_from_an_exported_actor(tmp_path: object) -> 
     for name, tensor in want.items():
         np.testing.assert_array_equal(got[name], tensor, name)
     cfg.actor.gru_hidden = 32
-    with pytest.raises(ConfigError, match="actor.init_from"):
+    with pytest.raises(ConfigError, match=r"actor\.init_from"):
         StreamLearner(cfg, info, Path(str(tmp_path)) / "b")

@@ -281,7 +281,9 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
     try:
         learner = StreamLearner(cfg, EnvInfo.of(learner_env), Path(run_dir))
     except ConfigError as e:  # actor.init_from that cannot be read or does not fit
-        send_message(outbox, "error", {"config": True, "message": str(e)})
+        send_message(outbox, "error", {
+            "config": True, "message": f"init_from: {e}; allowed: an exported actor of this "
+                                       "run's network and features, or ''"})
         return
     try:
         resumed = learner.resume_latest() if resume else None

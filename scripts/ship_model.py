@@ -21,44 +21,13 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.deploy_eval import SETS, instance_env, run_actor, summarise
 from sdhn_policy.weights import save_actor_file
-from sdhn_sim.envs import make_env
-from sdhn_sim.envs.api import EpisodeStats
 from sdhn_sim.envs.maif import MaifEnv
 from sdhn_sim.envs.maif_scripted import evaluate_scripted
-
-SETS = ("train", "heldout")
-
-
-def run_actor(rt: ActorRuntime, env: MaifEnv, seed: int) -> list[EpisodeStats]:
-    """One greedy episode per env of the batch (env b plays instance b), NumPy runtime only."""
-    b, n = env.num_envs, env.num_robots
-    obs, _ = env.reset(seed=seed)
-    h = rt.initial_state(b * n)
-    ids = np.tile(np.arange(n), b)
-    rng = np.random.default_rng(seed)
-    first: dict[int, EpisodeStats] = {}
-    while len(first) < b:
-        act, _, h = rt.act(obs.reshape(b * n, -1), h, greedy=True, rng=rng,
-                           robot_id=ids if rt.spec.use_robot_id else None)
-        res = env.step(act.reshape(b, n))
-        for ep in res.episodes:
-            first.setdefault(ep.env_index, ep)
-            h[ep.env_index * n:(ep.env_index + 1) * n] = 0.0  # a new episode starts there
-        obs = res.obs
-    return [first[i] for i in range(b)]
-
-
-def summarise(eps: list[EpisodeStats]) -> dict[str, object]:
-    done = [e.makespan for e in eps if e.makespan is not None]
-    return {"success_rate": float(np.mean([e.success for e in eps])),
-            "makespan": round(float(np.mean(done)), 2) if done else "NC",
-            "return": round(float(np.mean([e.episode_return for e in eps])), 2),
-            "collisions": round(float(np.mean([e.collisions for e in eps])), 2)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,10 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, dict[str, object]] = {}
     for which in SETS:
         def env(which: str = which) -> MaifEnv:
-            e = make_env(env_name, num_envs=k, seed=args.seed, instance_order="round_robin",
-                         instance_ids=list(range(k)), instance_set=which, reward=reward)
-            assert isinstance(e, MaifEnv)
-            return e
+            return instance_env(env_name, which, k, args.seed, reward)
         results[f"policy/{which}"] = summarise(run_actor(rt, env(), args.seed))
         for name in ("greedy", "planner"):
             r = evaluate_scripted(env_name, which, name, instances=k, seed=args.seed,

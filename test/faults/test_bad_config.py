@@ -67,6 +67,12 @@ CASES = {
     "actor-payload-is-a-directory": (("sdhn_policy", "actor"),
                                      ["robot_id:=0", "weights_file:={tmp}/dir.safetensors"],
                                      "weights_file:"),
+    "trainer-missing-init-from": (("sdhn_train", "trainer"),
+                                  ["env:=maif-tiny", "init_from:=/nonexistent/actor.safetensors"],
+                                  "init_from:"),
+    "trainer-unreadable-init-from": (("sdhn_train", "trainer"),  # found by the learner process
+                                     ["env:=maif-tiny", "init_from:={tmp}/list.safetensors"],
+                                     "init_from:"),
     "trainer-corrupt-checkpoint": (("sdhn_train", "trainer"),
                                    ["env:=maif-tiny", "resume:=true", "run_dir:={ckpt}"],
                                    "resume:"),

@@ -161,12 +161,20 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
         rclpy.try_shutdown(context=context)
 
 
-def stop_all(procs: list[Any]) -> None:
-    """SIGINT every node (they leave the graph cleanly) and wait; exit codes must be 0."""
+def stop_all(procs: list[Any], timeout: float = 10.0) -> None:
+    """SIGINT every node (they leave the graph cleanly) and wait; exit codes must be 0. A node
+    still running ``timeout`` s after its SIGINT fails the test with where it is stuck."""
     for p in procs:
         if p.proc.poll() is None:
             p.proc.send_signal(signal.SIGINT)
-    codes = [p.proc.wait(timeout=10) for p in procs]
+    deadline = time.monotonic() + timeout
+    codes = []
+    for p in procs:
+        try:
+            codes.append(p.proc.wait(timeout=max(deadline - time.monotonic(), 0.1)))
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"a node did not exit within {timeout} s of SIGINT: "
+                                 f"{p.where()}") from None
     assert all(c == 0 for c in codes), (codes, [p.output for p in procs])
 
 

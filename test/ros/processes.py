@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import signal
 import subprocess
 import sys
@@ -51,6 +52,24 @@ class NodeProcess:
                 return any(needle in line for line in self.lines)
             time.sleep(0.02)
         return False
+
+    def where(self) -> str:
+        """Where a process that does not stop is stuck, for the assertion message: its threads'
+        native backtraces (gdb, when installed) or their kernel wait channels, and its last
+        output lines (e.g. whether the node runner got as far as logging 'stopped')."""
+        pid = self.proc.pid
+        if shutil.which("gdb"):
+            done = subprocess.run(["gdb", "-p", str(pid), "-batch", "-nx",
+                                   "-ex", "thread apply all bt 25"],
+                                  capture_output=True, text=True, timeout=60, check=False)
+            stacks = "\n".join(line for line in done.stdout.splitlines()
+                                if line.startswith(("#", "Thread ")))
+        else:
+            tasks = sorted(Path(f"/proc/{pid}/task").glob("*"))
+            stacks = "\n".join(f"thread {t.name}: {(t / 'wchan').read_text()}" for t in tasks
+                                if (t / "wchan").exists())
+        last = "\n".join(self.lines[-5:])
+        return f"pid {pid} ({' '.join(self.args[-8:])}) last output:\n{last}\n{stacks}"
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 5.0) -> int | None:
         """Send ``sig`` and wait; returns the exit code, or None if it had to be killed."""

@@ -32,7 +32,7 @@ from sdhn_policy.weights import ActorSpec, encode_actor, save_actor_file
 from sdhn_sim.envs import make_single_env
 from sdhn_sim.recording.reader import decode, read_recording
 from sdhn_sim.recording.writer import McapRosWriter
-from sdhn_sim.ros.qos import STEP
+from sdhn_sim.ros.qos import SENSOR
 from sdhn_sim.viz.draw import map_to_cell
 
 from .deploy_helpers import TEAM_NS, actor_cmd, sim_cmd
@@ -81,7 +81,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("vizrec_hypergraphs", context=context)
-    graphs = node.create_publisher(Hypergraph, f"{TEAM_NS}/hypergraph", STEP)
+    # The trainer's profile: best effort, so a sample published before a recorder's reader has
+    # matched this writer is simply not delivered to it (nothing is re-sent).
+    graphs = node.create_publisher(Hypergraph, f"{TEAM_NS}/hypergraph", SENSOR)
     stop = threading.Event()
 
     def publish_graphs() -> None:
@@ -94,6 +96,15 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
         with node_processes(*recorders, *actors) as procs:
             for p in procs:
                 assert p.wait_for_line("ready", timeout=30), p.output
+            # A recorder being ready says nothing about this process's writer: the sim only waits
+            # for the recorders' obs/state subscriptions, and its run can be over before the
+            # hypergraph writer and the recorders' best-effort readers have discovered each
+            # other. Start the run only once both recorders are matched.
+            deadline = time.monotonic() + 30
+            while graphs.get_subscription_count() < 2 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert graphs.get_subscription_count() >= 2, (
+                f"hypergraph writer matched {graphs.get_subscription_count()} of 2 recorders")
             thread = threading.Thread(target=publish_graphs, daemon=True)
             thread.start()
             # both recorders must see every obs and state before step 0 (extra_subscribers=2)

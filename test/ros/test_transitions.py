@@ -275,3 +275,34 @@ def test_assembled_rollout_trains_the_shared_learner(tmp_path: object) -> None:
     _, got = decode_weights(again.weights())
     for name, tensor in want.items():
         np.testing.assert_array_equal(got[name], tensor, name)
+
+
+def test_stream_learner_warm_starts_from_an_exported_actor(tmp_path: object) -> None:
+    """actor.init_from (the trainer node's init_from): version 1 is the file's actor, as the
+    in-process trainer's start; an actor of another shape is a ConfigError naming the field."""
+    from pathlib import Path
+
+    from sdhn_policy.weights import decode_weights, load_actor_file
+    from sdhn_sim.envs import make_env
+    from sdhn_train.config import Config, ConfigError
+    from sdhn_train.env_features import resolve_features, wrap_features
+    from sdhn_train.envinfo import EnvInfo
+    from sdhn_train.stream_learner import StreamLearner
+
+    shipped = Path(__file__).resolve().parents[2] / "models/maif-solo-mappo/actor.safetensors"
+    cfg = Config()
+    cfg.env.name, cfg.env.num_envs, cfg.ppo.num_minibatches = "maif-tiny", 1, 1
+    cfg.log.tensorboard = False
+    cfg.actor.init_from = str(shipped)
+    info = EnvInfo.of(wrap_features(make_env("maif-tiny", num_envs=1, seed=0),
+                                    resolve_features(cfg)))
+    learner = StreamLearner(cfg, info, Path(str(tmp_path)) / "a")
+    assert learner.version == 1
+    _, want = decode_weights(load_actor_file(shipped))
+    _, got = decode_weights(learner.weights())
+    assert want.keys() == got.keys()
+    for name, tensor in want.items():
+        np.testing.assert_array_equal(got[name], tensor, name)
+    cfg.actor.gru_hidden = 32
+    with pytest.raises(ConfigError, match=r"actor\.init_from"):
+        StreamLearner(cfg, info, Path(str(tmp_path)) / "b")

@@ -18,7 +18,8 @@ one raw frame per array, received straight into a preallocated NumPy array
     learner -> node   "ready"    version, weights (format, sha256, payload) of the start version
                       "update"   version, metrics, timings, the update's end time, weights,
                                  hypergraph samples, rollouts the learner dropped so far
-                      "error"    a message; ``config`` = true when the run_dir/resume is unusable
+                      "error"    a message; ``config`` = true when the run_dir/resume or
+                                 actor.init_from is unusable
 
 In the learner process a receiver thread drains the pipe at once (so the node's sender never
 waits on an update in progress) into a queue of at most ``LEARNER_QUEUE`` rollouts; when the
@@ -53,6 +54,7 @@ from sdhn_train.transitions import AssembledRollout
 LEARNER_QUEUE = 4  # rollouts waiting in the learner process; beyond that the oldest is dropped
 LEARNER_NICE = 10  # the loop's processes come first on a busy machine
 ROLLOUT_DROPPED = "rollout dropped (learner busy)"
+PAST_TOTAL = "rollout after total_steps (not learned)"
 
 Arrays = dict[str, npt.NDArray[Any]]
 ROLLOUT_FIELDS = ("obs", "state", "actions", "log_probs", "rewards", "terminated", "truncated",
@@ -151,14 +153,14 @@ class LearnerClient:
     that calls ``on_update`` / ``on_error`` (those must only publish and log)."""
 
     def __init__(self, config: dict[str, Any], run_dir: Path, resume: bool,
-                 start_timeout: float = 180.0) -> None:
+                 start_timeout: float = 180.0, total_steps: int = 0) -> None:
         ctx = mp.get_context("spawn")
         self._to_child_r, self._to_child_w = ctx.Pipe(duplex=False)
         self._from_child_r, self._from_child_w = ctx.Pipe(duplex=False)
         self.process = ctx.Process(
             target=learner_main, name="sdhn-learner", daemon=True,
             args=(self._to_child_r, self._from_child_w, config, str(run_dir)),
-            kwargs={"resume": resume, "parent_pid": os.getpid()})
+            kwargs={"resume": resume, "parent_pid": os.getpid(), "total_steps": total_steps})
         self.process.start()
         self._to_child_r.close()
         self._from_child_w.close()
@@ -246,9 +248,10 @@ class LearnerClient:
 
 
 def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], run_dir: str,
-                 *, resume: bool, parent_pid: int) -> None:
+                 *, resume: bool, parent_pid: int, total_steps: int = 0) -> None:
     """Entry point of the learner process (spawned): build the learner, then train on every
-    rollout that arrives until "stop" or the node's end of the pipe closes."""
+    rollout that arrives until "stop" or the node's end of the pipe closes; with ``total_steps``
+    > 0, only until it has learned from that many transitions (later rollouts are counted)."""
     # Ctrl-C in a terminal reaches the whole process group: the node stops the learner itself
     # (a "stop" message, or the pipe closing when the node is gone).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -264,7 +267,7 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
     from sdhn_sim.envs.api import EpisodeStats
     from sdhn_sim.envs.registry import make_env  # heavy imports only in the child
     from sdhn_train import checkpoint as ckpt
-    from sdhn_train.config import Config, apply_dict
+    from sdhn_train.config import Config, ConfigError, apply_dict
     from sdhn_train.env_features import resolve_features, wrap_features
     from sdhn_train.envinfo import EnvInfo
     from sdhn_train.learners.base import NonFiniteLossError
@@ -275,7 +278,13 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
     apply_dict(cfg, params)  # the node's checked config (Config.to_dict), field by field
     env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
     learner_env = wrap_features(env, resolve_features(cfg))  # the learner sees features
-    learner = StreamLearner(cfg, EnvInfo.of(learner_env), Path(run_dir))
+    try:
+        learner = StreamLearner(cfg, EnvInfo.of(learner_env), Path(run_dir))
+    except ConfigError as e:  # actor.init_from that cannot be read or does not fit
+        send_message(outbox, "error", {
+            "config": True, "message": f"init_from: {e}; allowed: an exported actor of this "
+                                       "run's network and features, or ''"})
+        return
     try:
         resumed = learner.resume_latest() if resume else None
     except (ckpt.CheckpointError, KeyError, ValueError, RuntimeError) as e:
@@ -326,6 +335,9 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
                 if stop[0]:
                     return
                 header, arrays = pending.popleft()
+                if total_steps and learner.transitions >= total_steps:
+                    dropped[PAST_TOTAL] = dropped.get(PAST_TOTAL, 0) + 1
+                    continue
             assembled = assembled_from(arrays)
             try:
                 result = learner.train(assembled, HYPERGRAPHS_PER_UPDATE)

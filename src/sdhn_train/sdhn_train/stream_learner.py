@@ -2,7 +2,8 @@
 in-process trainer builds), fed with rollouts assembled from messages (``sdhn_train.transitions``)
 one at a time.
 
-    learner = StreamLearner(cfg, info, run_dir)          # seeds, builds the learner
+    learner = StreamLearner(cfg, info, run_dir)          # seeds, builds the learner (and
+                                                         # warm-starts it: actor.init_from)
     learner.resume_latest()                              # optional: newest complete checkpoint
     blob = learner.weights()                             # ActorWeights of the current version
     result = learner.train(assembled)                    # one update -> version + 1
@@ -33,6 +34,7 @@ from sdhn_train.envinfo import EnvInfo
 from sdhn_train.learners.base import Learner
 from sdhn_train.runs import seed_everything
 from sdhn_train.transitions import AssembledRollout
+from sdhn_train.warm_start import load_actor_into
 
 KEEP_CHECKPOINTS = 3
 
@@ -61,6 +63,8 @@ class StreamLearner:
         self.cfg, self.info, self.run_dir = cfg, info, run_dir
         self.rng = seed_everything(cfg.train.seed, cfg.train.deterministic, cfg.train.threads)
         self.learner: Learner = get_algorithm(cfg.algo.name).build_learner(cfg, info, self.rng)
+        if cfg.actor.init_from:  # warm start, as the in-process trainer (a resume overrides it)
+            load_actor_into(self.learner.actor, cfg.actor.init_from)
         self.version = 1
         self.transitions = 0  # team env-steps learned from: names the checkpoints
 

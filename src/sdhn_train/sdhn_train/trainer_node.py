@@ -15,7 +15,10 @@ the transitions assembled and learned, and the executor's longest stall go to
 
 Parameters (typed, with descriptors): env and algo (a name of the env / algorithm registry), seed
 (>= 0), run_dir ("" = runs/<env>__<algo>__<seed>__ros-<time>), rollout_steps (>= 2), config
-("" = defaults; YAML of the in-process trainer config), resume, team_ns. The YAML's
+("" = defaults; YAML of the in-process trainer config), resume, team_ns, init_from (an exported
+actor to start from, the in-process ``actor.init_from``) and total_steps (transitions to learn
+from, as the in-process ``train.total_steps``; 0 = until stopped: once the learner has learned
+that many, later rollouts are counted, not learned; the simulator goes on until stopped). The YAML's
 env/algo/seed/rollout length are replaced by the parameters; the ROS stream is one environment,
 so env.num_envs and ppo.num_minibatches are 1. Checking them, merging the config and resuming are
 plain functions below; the constructor only declares.
@@ -59,6 +62,7 @@ from sdhn_train.config import Config, apply_dict, load_yaml, validate
 from sdhn_train.config import ConfigError as TrainConfigError
 from sdhn_train.envinfo import EnvInfo
 from sdhn_train.learner_process import (
+    PAST_TOTAL,
     ROLLOUT_DROPPED,
     HypergraphSample,
     LearnerClient,
@@ -84,6 +88,8 @@ class TrainerParams:
     config: str = ""
     resume: bool = False
     team_ns: str = "/sdhn"
+    init_from: str = ""
+    total_steps: int = 0
 
 
 def _descriptors() -> dict[str, ParameterDescriptor]:
@@ -103,6 +109,11 @@ def _descriptors() -> dict[str, ParameterDescriptor]:
         "config": d("YAML of the in-process trainer config; '' = defaults", "a YAML file or ''"),
         "resume": d("continue from the newest checkpoint in run_dir", "true or false"),
         "team_ns": d("namespace of the team's topics", "an absolute namespace like /sdhn"),
+        "init_from": d("exported actor (.safetensors) to start from, as actor.init_from of the "
+                       "in-process trainer; '' = fresh (a resume loads its checkpoint)",
+                       "an actor .safetensors file or ''"),
+        "total_steps": d("team steps to learn from; 0 = until stopped", "an integer >= 0",
+                         low=0),
     }
 
 
@@ -131,7 +142,8 @@ def check_params(p: TrainerParams) -> None:
         raise ConfigError(f"team_ns: {p.team_ns!r}; allowed: {topics.TEAM_NS_RULE}")
 
 
-def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path: str) -> Config:
+def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path: str, *,
+                 init_from: str = "") -> Config:
     """The in-process trainer's typed config with the node's parameters laid over it."""
     cfg = Config()
     if config_path:
@@ -144,6 +156,11 @@ def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path
     cfg.env.name, cfg.algo.name, cfg.train.seed = env, algo, seed
     cfg.ppo.rollout_len = rollout_steps
     cfg.env.num_envs, cfg.ppo.num_minibatches = 1, 1
+    if init_from:
+        if not Path(init_from).is_file():
+            raise ConfigError(f"init_from: no such file {init_from!r}; allowed: an actor "
+                              ".safetensors file or ''")
+        cfg.actor.init_from = init_from
     cfg.log.progress = False
     try:
         validate(cfg)
@@ -165,9 +182,10 @@ def check_run_dir(p: TrainerParams) -> Path:
 
 def start_learner(p: TrainerParams, cfg: Config, run_dir: Path) -> LearnerClient:
     """The learner process (``sdhn_train.learner_process``), started and holding its first
-    version (fresh: checkpointed; resume: loaded). ConfigError for a checkpoint it cannot load."""
+    version (fresh: checkpointed, warm-started from ``init_from``; resume: loaded). ConfigError
+    for a checkpoint or an ``init_from`` actor it cannot load."""
     try:
-        return LearnerClient(cfg.to_dict(), run_dir, p.resume)
+        return LearnerClient(cfg.to_dict(), run_dir, p.resume, total_steps=p.total_steps)
     except LearnerStartError as e:
         if e.config:
             raise ConfigError(str(e)) from e
@@ -179,7 +197,9 @@ class TrainerNode(Node):
         super().__init__("trainer", context=context)
         p = declare_parameters(self)
         check_params(p)
-        cfg = build_config(p.env, p.algo, p.seed, p.rollout_steps, p.config)
+        cfg = build_config(p.env, p.algo, p.seed, p.rollout_steps, p.config,
+                           init_from=p.init_from)
+        self.total_steps = p.total_steps
         self.run_dir = check_run_dir(p)
         env = make_env(cfg.env.name, num_envs=1, seed=cfg.train.seed)
         self.info = EnvInfo.of(env)  # raw sizes, as the messages carry them
@@ -235,6 +255,7 @@ class TrainerNode(Node):
         self.get_logger().info(
             f"ready: env={cfg.env.name} algo={cfg.algo.name} robots={n} "
             f"rollout_steps={cfg.ppo.rollout_len} version={self.version} ({how}) "
+            f"init_from={cfg.actor.init_from or '-'} total_steps={self.total_steps or '-'} "
             f"run_dir={self.run_dir} learner_pid={self.learner.process.pid}")
 
     # -- callbacks (executor thread): validate, hand to the assembler, queue rollouts --------
@@ -326,6 +347,9 @@ class TrainerNode(Node):
             if kind not in self._logged_causes:  # step-level drops found by the assembler
                 self._log_once(kind, f"{count} so far")
         while (ready := self.assembler.pop_rollout()) is not None:
+            if self.total_steps and self.transitions_learned >= self.total_steps:
+                self._count(PAST_TOTAL, f"total_steps={self.total_steps} reached")
+                continue
             if self.learner.waiting >= QUEUE_ROLLOUTS:
                 self._count(ROLLOUT_DROPPED, f"{QUEUE_ROLLOUTS} rollouts waiting to be sent")
                 continue

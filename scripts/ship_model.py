@@ -26,7 +26,6 @@ import yaml
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.deploy_eval import SETS, instance_env, run_actor, summarise
 from sdhn_policy.weights import save_actor_file
-from sdhn_sim.envs.maif import MaifEnv
 from sdhn_sim.envs.maif_scripted import evaluate_scripted
 
 
@@ -60,9 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     k = args.instances
     results: dict[str, dict[str, object]] = {}
     for which in SETS:
-        def env(which: str = which) -> MaifEnv:
-            return instance_env(env_name, which, k, args.seed, reward)
-        results[f"policy/{which}"] = summarise(run_actor(rt, env(), args.seed))
+        env = instance_env(env_name, which, k, args.seed, reward)
+        results[f"policy/{which}"] = summarise(run_actor(rt, env, args.seed))
         for name in ("greedy", "planner"):
             r = evaluate_scripted(env_name, which, name, instances=k, seed=args.seed,
                                   reward=reward)

@@ -8,10 +8,18 @@ finds it cannot do its job sets ``failed_reason`` (:data:`FAILED`): exit code 1 
 configuration error found while building the node exits with code 2 and one line on stderr,
 before any topic is created. Once the node is built, the ready file of :mod:`sdhn_sim.ros.status`
 is written (when asked for).
+
+Teardown is bounded: once ``on_stop`` has run, destroying the node, shutting the context down and
+leaving the interpreter get :data:`TEARDOWN_S` seconds. Past that, a C-level watchdog
+(``faulthandler``, which needs no GIL, so a DDS deadlock that holds it cannot stop it) prints every
+thread's Python stack and ends the process with exit code 1. Why: a Fast DDS teardown deadlock
+(participant removal racing a departing peer, eProsima/Fast-DDS #6502, #6193) has been seen to keep
+an actor alive after SIGINT, which hangs whoever stops it.
 """
 
 from __future__ import annotations
 
+import faulthandler
 import gc
 import signal
 import sys
@@ -36,6 +44,7 @@ SPIN_SLICE_S = 0.05
 # A node that cannot go on sets this attribute to a one-line reason: the loop stops, the reason
 # goes to stderr and the exit code is 1 (the launcher reports the child as failed).
 FAILED = "failed_reason"
+TEARDOWN_S = 5.0
 
 
 def run_node(
@@ -47,6 +56,7 @@ def run_node(
 
     ``make_node`` receives the context and the command-line arguments with ROS arguments removed.
     ``on_stop`` runs before the node is destroyed (flush files, stop worker threads).
+    It is a process's main: after it returns the process has ``TEARDOWN_S`` seconds to exit.
     """
     args = list(sys.argv if argv is None else argv)
     prog = args[0] if args else "node"
@@ -86,5 +96,8 @@ def run_node(
             if on_stop is not None:
                 on_stop(node)
             node.get_logger().info("stopped")
+        # Not cancelled: it also bounds the interpreter's exit, where rclpy's objects are freed.
+        faulthandler.dump_traceback_later(TEARDOWN_S, exit=True)
+        if node is not None:
             node.destroy_node()
         rclpy.try_shutdown(context=context)

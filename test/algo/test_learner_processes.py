@@ -17,14 +17,16 @@ import numpy as np
 import pytest
 import torch
 import torch.multiprocessing as mp
+from safetensors.numpy import load_file
 
 from sdhn_sim.envs import make_env
 from sdhn_sim.envs.api import BatchedEnv
 from sdhn_train.cli import main as train_main
 from sdhn_train.config import Config, ConfigError, set_field, validate
-from sdhn_train.data_parallel import Group
+from sdhn_train.data_parallel import Group, LearnerProcessError
+from sdhn_train.ranks import learner_ranks
 from sdhn_train.rollout import Rollout
-from sdhn_train.trainer import Trainer
+from sdhn_train.trainer import Trainer, rank_seed
 
 B, HALF = 4, 2
 
@@ -127,22 +129,46 @@ def test_learner_processes_config_is_checked(sets: dict[str, str], field: str) -
         validate(cfg)
 
 
+def _train(root: Path, name: str, *extra: str) -> int:
+    return train_main([
+        "--env", "maif-tiny", "--algo", "mappo", "--set", "env.num_envs=4",
+        "--set", "ppo.rollout_len=16", "--set", "ppo.num_minibatches=2",
+        "--set", "eval.interval=0", "--set", "log.progress=false",
+        "--set", "log.tensorboard=false", "--set", "train.learner_processes=2",
+        "--set", f"log.root={root}", "--set", f"log.run_name={name}", *extra])
+
+
 def test_train_with_two_learner_processes_checkpoints_and_resumes(tmp_path: Path) -> None:
-    base = ["--env", "maif-tiny", "--algo", "mappo", "--set", "env.num_envs=4",
-            "--set", "ppo.rollout_len=16", "--set", "ppo.num_minibatches=2",
-            "--set", "eval.interval=0", "--set", "log.progress=false",
-            "--set", "log.tensorboard=false", "--set", "train.learner_processes=2",
-            "--set", f"log.root={tmp_path}", "--set", "log.run_name=k2",
-            "--set", "log.checkpoint_interval=64"]
-    assert train_main([*base, "--set", "train.total_steps=128"]) == 0
-    run = tmp_path / "k2"
-    summary = json.loads((run / "summary.json").read_text())
-    assert summary["global_step"] == 128, summary
+    """Stopping at a checkpoint and resuming gives the uninterrupted run's actor: every rank's
+    environments, carries and RNG come back, not only rank 0's."""
+    assert _train(tmp_path, "whole", "--set", "train.total_steps=128") == 0
+    assert _train(tmp_path, "split", "--set", "train.total_steps=64") == 0
+    run = tmp_path / "split"
     ckpts = sorted((run / "checkpoints").glob("*.json"))
-    assert ckpts, f"no checkpoint in {run}"
+    assert [c.stem for c in ckpts] == ["step_000000000064"], ckpts
     meta = json.loads(ckpts[-1].read_text())
     assert "rank1.env_values" in meta, "rank 1's shard is missing from the checkpoint"
+    assert train_main(["--resume", str(run), "--set", "train.total_steps=128"]) == 0
 
-    assert train_main(["--resume", str(run), "--set", "train.total_steps=256"]) == 0
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["global_step"] == 256, summary
+    assert summary["global_step"] == 128, summary
+    want = load_file(str(tmp_path / "whole" / "actor.safetensors"))
+    got = load_file(str(run / "actor.safetensors"))
+    assert want.keys() == got.keys()
+    for k, v in want.items():
+        np.testing.assert_array_equal(got[k], v, err_msg=k)
+
+
+def _broken_in_rank_1(name: str, num_envs: int, seed: int, **kw: object) -> BatchedEnv:
+    if seed == rank_seed(_cfg("mappo").train.seed, 1):
+        raise ValueError("no environments in rank 1")
+    return _short(name, num_envs, seed)
+
+
+def test_a_failed_learner_process_ends_the_run_with_one_error(tmp_path: Path) -> None:
+    cfg = _cfg("mappo")
+    cfg.train.learner_processes = 2
+    expect = "learner process 1 failed: ValueError: no environments in rank 1"
+    with (pytest.raises(LearnerProcessError, match=expect),
+          learner_ranks(cfg, tmp_path, env_factory=_broken_in_rank_1) as group):
+        Trainer(cfg, _short, run_dir=tmp_path, group=group)

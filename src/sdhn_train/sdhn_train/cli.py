@@ -10,7 +10,8 @@ the previous one, said in one line. Nothing is written into the run before the c
 
 Exit codes: 0 done (or stopped by Ctrl-C / SIGTERM after saving a checkpoint), 2 invalid
 configuration or unusable checkpoint (one line; ``--debug`` for the traceback), 3 training
-stopped on a non-finite loss.
+stopped on a non-finite loss, 1 another learner process failed (``train.learner_processes`` > 1;
+one line naming it).
 """
 
 from __future__ import annotations

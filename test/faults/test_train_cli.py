@@ -1,6 +1,7 @@
 """``train`` as a user drives it (the real console script, as a subprocess): resume takes the
 run's saved config and never writes into the run before its checkpoint loaded, falls back past a
-damaged checkpoint, refuses unsafe changes and reused names; Ctrl-C saves a checkpoint; a resume
+damaged checkpoint, refuses unsafe changes and reused names; Ctrl-C saves a checkpoint (with two
+learner processes too, none left behind); a resume
 after a kill leaves no duplicate metric rows; every bad input is one line and exit 2."""
 
 from __future__ import annotations
@@ -144,6 +145,40 @@ def test_ctrl_c_or_sigterm_saves_a_checkpoint(tmp_path: Path, sig: int) -> None:
     ckpts = sorted((d / "checkpoints").glob("*.json"))
     assert len(ckpts) == 1
     assert int(ckpts[0].stem[5:]) == _steps(d)[-1]  # no step logged past the checkpoint
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("to_group", [True, False],
+                         ids=["ctrl-c-to-the-process-group", "sigterm-to-rank-0"])
+def test_two_learner_processes_stop_together_with_one_checkpoint(tmp_path: Path,
+                                                                 to_group: bool) -> None:
+    """A terminal's Ctrl-C reaches every process of the group; rank 1 ignores it and stops when
+    rank 0 says so, after a checkpoint holding both ranks' shards; no process is left behind."""
+    p = subprocess.Popen([TRAIN, *SMALL, "--set", f"log.root={tmp_path}", "--run-name", "r",
+                          "--set", "log.checkpoint_interval=0", "--total-steps", "100000000",
+                          "--set", "train.learner_processes=2"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    d = tmp_path / "r"
+    _wait_for(lambda: (d / "metrics.csv").is_file() and len(_steps(d)) >= 2, 120)
+    if to_group:
+        os.killpg(p.pid, signal.SIGINT)
+    else:
+        p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 0, err
+    assert "Traceback" not in err and "stopped at step" in err, err
+    ckpts = sorted((d / "checkpoints").glob("*.json"))
+    assert len(ckpts) == 1, ckpts
+    assert "rank1.env_values" in json.loads(ckpts[0].read_text()), "rank 1's shard is missing"
+    _wait_for(lambda: not _group_alive(p.pid), 15)
 
 
 def test_resume_after_a_kill_leaves_no_duplicate_metric_rows(tmp_path: Path) -> None:

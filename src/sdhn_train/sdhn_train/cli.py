@@ -10,7 +10,8 @@ the previous one, said in one line. Nothing is written into the run before the c
 
 Exit codes: 0 done (or stopped by Ctrl-C / SIGTERM after saving a checkpoint), 2 invalid
 configuration or unusable checkpoint (one line; ``--debug`` for the traceback), 3 training
-stopped on a non-finite loss.
+stopped on a non-finite loss, 1 another learner process failed (``train.learner_processes`` > 1;
+one line naming it).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from sdhn_train.config import (
     set_field,
     validate,
 )
+from sdhn_train.data_parallel import LearnerProcessError
 
 SHORTCUTS = {  # --flag -> config field
     "env": "env.name", "algo": "algo.name", "seed": "train.seed",
@@ -146,6 +148,7 @@ def _main(args: argparse.Namespace) -> int:
     if args.print_config:
         print(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
         return 0
+    from sdhn_train.ranks import learner_ranks
     from sdhn_train.trainer import Trainer, default_run_dir
 
     run_dir = run_dir_of(resume) if resume is not None else None
@@ -157,8 +160,9 @@ def _main(args: argparse.Namespace) -> int:
                               "choose another name or --resume it")
     # A resumed run's actor comes from its checkpoint: its warm-start file (kept in the config
     # as provenance) is neither needed nor read.
-    trainer = Trainer(cfg, run_dir=run_dir, warm_start=resume is None)
-    return trainer.run(resume=resume)
+    with learner_ranks(cfg, run_dir, resume, resume is None) as group:  # K = 1: no process
+        trainer = Trainer(cfg, run_dir=run_dir, warm_start=resume is None, group=group)
+        return trainer.run(resume=resume)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -171,6 +175,11 @@ def main(argv: list[str] | None = None) -> int:
         text = " ".join(str(e).split())
         print(f"train: invalid configuration: {text}", file=sys.stderr)
         return 2
+    except LearnerProcessError as e:  # another learner process failed (train.learner_processes)
+        if args.debug:
+            raise
+        print(f"train: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:  # a second Ctrl-C while the checkpoint was being written
         print("train: interrupted twice; stopped without a final checkpoint", file=sys.stderr)
         return 130

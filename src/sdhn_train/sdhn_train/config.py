@@ -24,7 +24,7 @@ from sdhn_policy.features import TRANSFORMS
 from sdhn_sim import overrides
 from sdhn_sim.envs.maif import MAIF_REWARDS
 from sdhn_sim.envs.registry import env_names
-from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS
+from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS, get_algorithm
 from sdhn_train.learners.ppo import PPOConfig
 from sdhn_train.sections import (
     ActorConfig,
@@ -151,7 +151,8 @@ def validate(cfg: Config, resuming: bool = False) -> None:
          cfg.env.instance_set)
     positive = {
         "env.num_envs": cfg.env.num_envs, "train.total_steps": cfg.train.total_steps,
-        "train.threads": cfg.train.threads, "actor.gru_hidden": cfg.actor.gru_hidden,
+        "train.threads": cfg.train.threads, "train.learner_processes": cfg.train.learner_processes,
+        "actor.gru_hidden": cfg.actor.gru_hidden,
         "eval.episodes": cfg.eval.episodes, "eval.instances": cfg.eval.instances,
     }
     for path, v in positive.items():
@@ -168,6 +169,7 @@ def validate(cfg: Config, resuming: bool = False) -> None:
          "an integer >= 1 or null", cfg.env.max_steps)
     need(cfg.ppo.num_minibatches <= cfg.env.num_envs, "ppo.num_minibatches",
          f"1..env.num_envs ({cfg.env.num_envs})", cfg.ppo.num_minibatches)
+    _validate_learner_processes(cfg)
     need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",
          cfg.actor.hidden_sizes)
     # A missing warm-start file is refused here, not after the environments are built.
@@ -176,6 +178,24 @@ def validate(cfg: Config, resuming: bool = False) -> None:
         need(init.is_file() and init.with_suffix(".json").is_file(), "actor.init_from",
              "an exported actor: a .safetensors file beside its .json (relative paths from "
              "the current directory)", cfg.actor.init_from)
+
+
+def _validate_learner_processes(cfg: Config) -> None:
+    """K > 1 splits every minibatch into K equal shares (so the averaged gradient is the whole
+    minibatch's) and issues collectives in one fixed order (so no second thread may)."""
+    k = cfg.train.learner_processes
+    if k == 1:
+        return
+    b = cfg.env.num_envs
+    need(b % k == 0, "train.learner_processes", f"a divisor of env.num_envs ({b})", k)
+    # The PPO algorithms are the ones with a target-critic rate; value mixing has no PPO update.
+    need(hasattr(get_algorithm(cfg.algo.name), "default_target_tau"), "train.learner_processes",
+         "1 for the value-mixing algorithms (qmix, hgcn_mix)", k)
+    need((b // k) % cfg.ppo.num_minibatches == 0, "ppo.num_minibatches",
+         f"a divisor of env.num_envs / train.learner_processes ({b // k}) when "
+         "train.learner_processes > 1", cfg.ppo.num_minibatches)
+    need(not cfg.ppo.concurrent_actor_critic, "ppo.concurrent_actor_critic",
+         "false when train.learner_processes > 1", cfg.ppo.concurrent_actor_critic)
 
 
 def describe() -> str:

@@ -27,10 +27,12 @@ from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import get_algorithm
 from sdhn_train.collector import RolloutCollector
 from sdhn_train.config import Config
+from sdhn_train.data_parallel import Command, Group
 from sdhn_train.env_features import make_training_env, unwrap
 from sdhn_train.envinfo import EnvInfo
 from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs
 from sdhn_train.learners.base import Learner, NonFiniteLossError
+from sdhn_train.learners.ppo import PPOLearner
 from sdhn_train.normalize import RewardNormalizer
 from sdhn_train.rollout import Rollout
 from sdhn_train.runs import (
@@ -40,6 +42,7 @@ from sdhn_train.runs import (
     seed_everything,
     trim_metrics,
 )
+from sdhn_train.sections import ConfigError
 from sdhn_train.warm_start import load_actor_into
 
 EnvFactory = Callable[..., BatchedEnv]  # (name, num_envs, seed, **overrides) -> env
@@ -58,22 +61,47 @@ def default_run_dir(cfg: Config) -> Path:
     return Path(cfg.log.root) / name
 
 
+def rank_seed(seed: int, rank: int) -> int:
+    """Learner process ``rank``'s seed (its environments and action draws): rank 0 keeps
+    ``train.seed``, so one learner process is today's run exactly."""
+    return seed + 1_000_003 * rank
+
+
 class Trainer:
+    """With ``group`` (``train.learner_processes`` > 1) this is one of K learner processes on
+    B/K environments; only rank 0 runs ``run`` (evaluates, logs, checkpoints, exports), the
+    others serve its commands (``sdhn_train.ranks``)."""
+
     def __init__(self, cfg: Config, env_factory: EnvFactory = default_env_factory,
-                 run_dir: Path | None = None, warm_start: bool = True) -> None:
-        self.cfg = cfg
-        self.np_rng = seed_everything(cfg.train.seed, cfg.train.deterministic, cfg.train.threads)
-        self.env = make_training_env(cfg, env_factory, cfg.env.num_envs, cfg.train.seed)
-        self.eval_envs = make_eval_envs(cfg, env_factory)  # training set "" and held-out set
+                 run_dir: Path | None = None, warm_start: bool = True,
+                 group: Group | None = None) -> None:
+        self.cfg, self.group = cfg, group
+        self.rank, self.world = (group.rank, group.world) if group is not None else (0, 1)
+        seed = rank_seed(cfg.train.seed, self.rank)
+        num_envs = cfg.env.num_envs // self.world
+        self.np_rng = seed_everything(seed, cfg.train.deterministic, cfg.train.threads)
+        self.env = make_training_env(cfg, env_factory, num_envs, seed)
+        # training set "" and held-out set; rank 0 alone evaluates
+        self.eval_envs = make_eval_envs(cfg, env_factory) if self.rank == 0 else {}
         self.eval_env = self.eval_envs.get("")
+        # Every rank draws the same minibatch permutations (of its own envs), so the learner
+        # state rank 0 checkpoints is every rank's.
+        learner_rng = self.np_rng if self.rank == 0 else np.random.default_rng(cfg.train.seed)
         self.learner: Learner = get_algorithm(cfg.algo.name).build_learner(
-            cfg, EnvInfo.of(self.env), self.np_rng)
+            cfg, EnvInfo.of(self.env), learner_rng)
         if cfg.actor.init_from and warm_start:  # warm start from an exported actor
             load_actor_into(self.learner.actor, cfg.actor.init_from)
+        if group is not None:
+            if not isinstance(self.learner, PPOLearner):
+                raise ConfigError("train.learner_processes > 1 needs a PPO learner (sdhn, "
+                                  f"mappo, dicg), not {cfg.algo.name}")
+            self.learner.group = group
+            group.broadcast_modules((self.learner.actor, self.learner.critic,
+                                     self.learner.target_critic))
         self.collector = RolloutCollector(self.env, self.learner.actor, cfg.ppo.rollout_len,
                                           self.learner.sample_actions)
-        self.critic_h = self.learner.initial_critic_hidden(cfg.env.num_envs)
-        self.reward_norm = (RewardNormalizer(cfg.env.num_envs, cfg.ppo.gamma)
+        self.critic_h = self.learner.initial_critic_hidden(num_envs)
+        self.reward_norm = (RewardNormalizer(num_envs, cfg.ppo.gamma)
                             if cfg.ppo.normalize_rewards else None)
         self.global_step = 0
         self.last_checkpoint: Path | None = None
@@ -83,18 +111,35 @@ class Trainer:
 
     # -- checkpoints ---------------------------------------------------------------------------
 
-    def save_checkpoint(self) -> Path:
-        arrays, meta = ckpt.learner_state(self.learner)
+    def shard_state(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """What is this process's own: its environments, the collector's carry, the reward
+        normaliser and (for ranks > 0, whose action draws differ) torch's RNG state."""
         env_arrays, env_values = ckpt.env_snapshot(unwrap(self.env))
-        arrays.update({f"env.{k}": v for k, v in env_arrays.items()})
+        arrays = {f"env.{k}": v for k, v in env_arrays.items()}
         arrays["collector.obs"] = self.collector.obs
         arrays["collector.state"] = self.collector.state
         arrays["collector.actor_h"] = self.collector.actor_h
         arrays["collector.critic_h"] = self.critic_h
         if self.reward_norm is not None:
             arrays.update({f"reward_norm.{k}": v for k, v in self.reward_norm.state().items()})
+        if self.rank:
+            arrays["rng.torch"] = torch.get_rng_state().numpy()
+        return arrays, env_values
+
+    def save_checkpoint(self) -> Path:
+        """Rank 0 writes one checkpoint: the learner (identical in every process), its own
+        shard under today's keys and rank r's shard under ``rank<r>.``."""
+        arrays, meta = ckpt.learner_state(self.learner)
+        shard, env_values = self.shard_state()
+        arrays.update(shard)
         meta.update(global_step=self.global_step, config=self.cfg.to_dict(),
                     env_values=env_values)
+        if self.group is not None:
+            self.group.command(Command.SHARD)
+            shards = self.group.gather(None) or []
+            for r, (other, values) in enumerate(shards[1:], start=1):
+                arrays.update({f"rank{r}.{k}": v for k, v in other.items()})
+                meta[f"rank{r}.env_values"] = values
         path = ckpt.checkpoint_path(self.run_dir, self.global_step)
         ckpt.save_checkpoint(path, arrays, meta)
         self.last_checkpoint = path
@@ -104,7 +149,8 @@ class Trainer:
         """Load ``path``; CheckpointError (one line) when it does not fit this configuration."""
         arrays, meta = ckpt.load_checkpoint(path)
         saved = meta.get("config", {})
-        for section, name in (("algo", "name"), ("env", "name")):
+        for section, name in (("algo", "name"), ("env", "name"),
+                              ("train", "learner_processes")):  # the shards must match
             have = getattr(getattr(self.cfg, section), name)
             was = saved.get(section, {}).get(name, have)
             if was != have:
@@ -120,9 +166,13 @@ class Trainer:
 
     def _restore(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
         ckpt.restore_learner_state(self.learner, arrays, meta)
+        prefix = f"rank{self.rank}." if self.rank else ""  # this process's shard
+        if prefix:
+            arrays = {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
+            torch.set_rng_state(torch.from_numpy(arrays["rng.torch"].copy()))
         ckpt.env_restore(unwrap(self.env),
                          {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
-                         meta["env_values"])
+                         meta[f"{prefix}env_values"])
         self.collector.obs = arrays["collector.obs"].copy()
         self.collector.state = arrays["collector.state"].copy()
         self.collector.actor_h = arrays["collector.actor_h"].copy()
@@ -150,6 +200,8 @@ class Trainer:
 
     def train_iteration(self) -> tuple[dict[str, float], list[EpisodeStats]]:
         """One rollout + one PPO update (the unit that checkpoints and resume line up on)."""
+        if self.group is not None and self.rank == 0:
+            self.group.command(Command.ITERATE)  # the other ranks run this method with us
         rollout, episodes = self.collector.collect(self.critic_h)
         self.last_rollout = rollout
         if self.reward_norm is not None:
@@ -158,7 +210,7 @@ class Trainer:
         metrics = self.learner.update(rollout)
         self.collector.timings.update += time.perf_counter() - t0
         self.critic_h = self.learner.next_critic_hidden()
-        self.global_step += rollout.rewards.size
+        self.global_step += rollout.rewards.size * self.world  # every rank's share is equal
         return metrics, episodes
 
     def run(self, resume: Path | None = None, out: TextIO = sys.stderr) -> int:

@@ -1,5 +1,6 @@
 """The experiment runner on a Ray cluster: each (method, task, seed) run is one Ray task that
-asks for the run's declared CPU count (``train.threads``).
+asks for the run's declared CPU count (``train.threads`` per learner process, times
+``train.learner_processes``).
 
     run_experiments configs/suites/paper.yaml --budget paper --logdir /shared/runs/paper \\
         --backend ray --address ray://head:10001
@@ -40,6 +41,7 @@ from sdhn_train.analysis.experiments import (
     result_line,
     run_state,
 )
+from sdhn_train.sections import TrainConfig
 
 ATTEMPTS = "attempts.jsonl"
 MAX_RETRIES = 3  # per task, on a worker's or node's death
@@ -94,6 +96,11 @@ def _ray_node() -> str | None:
     return ray.get_runtime_context().get_node_id() if ray.is_initialized() else None
 
 
+def _cpus(train: TrainConfig) -> int:
+    """CPUs a run uses: its intra-op threads in each of its learner processes."""
+    return train.threads * train.learner_processes
+
+
 def _fmt_time(seconds: float) -> str:
     seconds = int(seconds)
     return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m{seconds % 60:02d}s"
@@ -114,7 +121,7 @@ def run_suite_ray(runs: list[RunSpec], logdir: Path, address: str | None = None,
     states = {r.name: run_state(r, logdir) for r in runs}
     todo = [r for r in runs if states[r.name] != "done"]
     counts = {"done": 0, "skipped": len(runs) - len(todo), "failed": 0}
-    cpus = {r.name: max(1, r.config(logdir).train.threads) for r in todo}
+    cpus = {r.name: max(1, _cpus(r.config(logdir).train)) for r in todo}
 
     started_here = not ray.is_initialized()
     if started_here:

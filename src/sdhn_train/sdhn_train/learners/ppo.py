@@ -23,6 +23,7 @@ from torch import Tensor, nn
 from sdhn_policy.actor_torch import Actor
 from sdhn_policy.weights import ActorWeights
 from sdhn_train import checkpoint as ckpt
+from sdhn_train.data_parallel import Group
 from sdhn_train.fused_gru import use_fused_gru
 from sdhn_train.learners.base import (
     F32,
@@ -170,6 +171,9 @@ class PPOLearner:
         self._next_critic_hidden: F32 | None = None  # critic_h0 for the next rollout
         self.timings = {"critic": 0.0, "actor_update": 0.0}  # wall seconds (benchmark shares)
         self._executor: ThreadPoolExecutor | None = None  # ppo.concurrent_actor_critic
+        # train.learner_processes > 1: this replica's group; gradients, the advantage
+        # statistics and the logged metrics are averaged over it (sdhn_train.data_parallel)
+        self.group: Group | None = None
 
     @property
     def actor(self) -> Actor:
@@ -266,7 +270,10 @@ class PPOLearner:
         logp = logp_all.gather(-1, r["actions"][:, envs, :, None]).squeeze(-1)
         entropy = -(logp_all.exp() * logp_all).sum(-1).mean()
         mb_adv = adv[:, envs]
-        if cfg.normalize_advantages and mb_adv.numel() > 1:
+        if cfg.normalize_advantages and self.group is not None:  # over the whole minibatch
+            mean, std = self.group.mean_std(mb_adv)
+            mb_adv = (mb_adv - mean) / (std + 1e-8)
+        elif cfg.normalize_advantages and mb_adv.numel() > 1:
             mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
         pg_loss, approx_kl, clipfrac = clipped_policy_loss(
             logp, r["logp_old"][:, envs], mb_adv, cfg.clip)
@@ -289,6 +296,8 @@ class PPOLearner:
         t0 = time.perf_counter()
         self.actor_opt.zero_grad(set_to_none=True)
         loss.backward()
+        if self.group is not None:
+            self.group.average_grads(self.actor.parameters())
         norm = nn.utils.clip_grad_norm_(self.actor.parameters(), self.cfg.max_grad_norm)
         self.actor_opt.step()
         self.timings["actor_update"] += time.perf_counter() - t0
@@ -298,6 +307,8 @@ class PPOLearner:
         t0 = time.perf_counter()
         self.critic_opt.zero_grad(set_to_none=True)
         loss.backward()
+        if self.group is not None:
+            self.group.average_grads(self.critic.parameters())
         norm = nn.utils.clip_grad_norm_(self.critic.parameters(), self.cfg.max_grad_norm)
         self.critic_opt.step()
         soft_update(self.target_critic, self.critic, self.target_tau)
@@ -318,7 +329,10 @@ class PPOLearner:
             fut = pool.submit(self._actor_loss, r, envs, adv)
             critic_loss, c_stats = self._critic_loss(r, envs, targets, h0)
             actor_loss, a_stats = fut.result()
-        if not (torch.isfinite(actor_loss) and torch.isfinite(critic_loss)):
+        finite = bool(torch.isfinite(actor_loss) and torch.isfinite(critic_loss))
+        if self.group is not None:  # every replica raises, or none (no peer left waiting)
+            finite = self.group.all_true(finite)
+        if not finite:
             raise NonFiniteLossError(
                 f"non-finite loss in update {self.num_updates + 1}: actor "
                 f"{float(actor_loss)}, critic {float(critic_loss)}")
@@ -342,6 +356,13 @@ class PPOLearner:
         return self._executor
 
     # -- the update -----------------------------------------------------------------------
+
+    def minibatch_envs(self, b: int) -> list[Tensor]:
+        """One epoch's minibatches: a permutation of the b environments in
+        ``num_minibatches`` chunks (with learner processes: of this process's environments,
+        the same chunk sizes in every process)."""
+        num_mb = max(1, min(self.cfg.num_minibatches, b))
+        return list(torch.from_numpy(self.rng.permutation(b)).chunk(num_mb))
 
     def update(self, rollout: Rollout) -> dict[str, float]:
         """One PPO update on a rollout; returns scalar metrics keyed by TensorBoard tag."""
@@ -367,10 +388,8 @@ class PPOLearner:
 
         sums: dict[str, float] = {}
         count = 0
-        num_mb = max(1, min(cfg.num_minibatches, b))
         for _epoch in range(cfg.epochs):
-            perm = torch.from_numpy(self.rng.permutation(b))
-            for envs in perm.chunk(num_mb):
+            for envs in self.minibatch_envs(b):
                 step = self._minibatch(r, envs, adv, targets, h0)
                 for k, v in step.items():
                     sums[k] = sums.get(k, 0.0) + float(v.detach())
@@ -379,4 +398,6 @@ class PPOLearner:
         metrics = {k: v / count for k, v in sums.items()}
         metrics["losses/explained_variance"] = explained_variance(values, targets)
         metrics["losses/advantage_mean"] = float(adv.mean())
+        if self.group is not None:  # explained variance: the mean of the replicas' figures
+            metrics = self.group.average_metrics(metrics)
         return metrics

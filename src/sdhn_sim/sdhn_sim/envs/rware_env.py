@@ -176,6 +176,12 @@ class RwareEnv:
         )
 
     @property
+    def warehouses(self) -> list[Any]:
+        """The B raw rware ``Warehouse`` objects, read-only by convention: what a centralised
+        scripted baseline (``rware_scripted.ScriptedPolicy``) plans from."""
+        return list(self._raw)
+
+    @property
     def positions(self) -> npt.NDArray[np.int64]:
         """[B, N, 2] (x, y) of every robot, read from the rware warehouses."""
         return np.array([[[a.x, a.y] for a in raw.agents] for raw in self._raw],

@@ -9,7 +9,9 @@ same warehouse. Size and difficulty are overridable.
 rware 2.0.0 reports the 500-step limit as ``terminated=True, truncated=False``; the adapter
 reports it as what it is, a truncation (``terminated=False, truncated=True``), so learners
 bootstrap. RWARE has no success notion: ``EpisodeStats.makespan`` is None, ``success`` False,
-``collisions`` 0 and ``formation_error`` 0.
+``collisions`` 0 and ``formation_error`` 0. ``deliveries`` counts the requested shelves delivered,
+read from rware's request queue (each delivery replaces its slot), not from the reward: under the
+registered tasks' individual reward the two agree, and a test keeps them agreeing.
 """
 
 from __future__ import annotations
@@ -87,6 +89,7 @@ class RwareEnv:
         self._pending_seed: list[int | None] = [self._seed + b for b in range(self.num_envs)]
         self._t = [0] * self.num_envs
         self._ret = [0.0] * self.num_envs
+        self._deliveries = [0] * self.num_envs
         self._started = False
         self.robot_rewards: FloatArray = np.zeros((self.num_envs, self.num_robots), np.float32)
 
@@ -96,6 +99,7 @@ class RwareEnv:
         obs, _ = self._raw[b].reset(seed=seed)
         self._t[b] = 0
         self._ret[b] = 0.0
+        self._deliveries[b] = 0
         return tuple(obs)
 
     def reset(self, seed: int | None = None) -> tuple[FloatArray, FloatArray]:
@@ -132,7 +136,11 @@ class RwareEnv:
         done: list[int] = []
         limit = self.max_steps
         for b, env in enumerate(self._raw):
+            # rware replaces a delivered shelf's slot of its request queue in place
+            queue = env.request_queue
+            before = queue.copy()
             o, r, te, tr, _ = env.step(acts[b])
+            self._deliveries[b] += sum(x is not y for x, y in zip(before, queue, strict=True))
             ob = obs[b]
             for i in range(n):
                 ob[i] = o[i]
@@ -161,6 +169,7 @@ class RwareEnv:
                         success=False,
                         collisions=0,
                         formation_error=0.0,
+                        deliveries=self._deliveries[b],
                     )
                 )
                 obs[b] = self._reset_one(b)

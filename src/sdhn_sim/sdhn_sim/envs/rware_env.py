@@ -9,9 +9,11 @@ same warehouse. Size and difficulty are overridable.
 rware 2.0.0 reports the 500-step limit as ``terminated=True, truncated=False``; the adapter
 reports it as what it is, a truncation (``terminated=False, truncated=True``), so learners
 bootstrap. RWARE has no success notion: ``EpisodeStats.makespan`` is None, ``success`` False,
-``collisions`` 0 and ``formation_error`` 0. ``deliveries`` counts the requested shelves delivered,
-read from rware's request queue (each delivery replaces its slot), not from the reward: under the
-registered tasks' individual reward the two agree, and a test keeps them agreeing.
+``collisions`` 0 and ``formation_error`` 0. ``deliveries`` counts the requested shelves delivered:
+the registered tasks pay rware's *individual* reward, exactly +1 to one robot per delivery and
+nothing else, so the count is the number of +1 payments (and equals the return). It is not read
+from the request queue: a shelf newly requested while it stands on the other goal is delivered
+twice in one step but replaces one queue slot (seen on rware-9).
 """
 
 from __future__ import annotations
@@ -82,6 +84,9 @@ class RwareEnv:
         self._envs = [make_rware_gym(self.env_id, self.max_steps) for _ in range(self.num_envs)]
         # step the Warehouse itself: the gymnasium wrappers only add per-step checks
         self._raw = [e.unwrapped for e in self._envs]
+        if self._raw[0].reward_type.name != "INDIVIDUAL":  # deliveries are counted from it
+            raise ValueError(f"{self.env_id}: expected rware's individual reward, got "
+                             f"{self._raw[0].reward_type.name}")
         space = self._envs[0].observation_space
         self.obs_size = int(space[0].shape[0])
         self.state_size = self.num_robots * self.obs_size
@@ -136,11 +141,7 @@ class RwareEnv:
         done: list[int] = []
         limit = self.max_steps
         for b, env in enumerate(self._raw):
-            # rware replaces a delivered shelf's slot of its request queue in place
-            queue = env.request_queue
-            before = queue.copy()
             o, r, te, tr, _ = env.step(acts[b])
-            self._deliveries[b] += sum(x is not y for x, y in zip(before, queue, strict=True))
             ob = obs[b]
             for i in range(n):
                 ob[i] = o[i]
@@ -149,6 +150,7 @@ class RwareEnv:
             team.append(tr_b)
             self._t[b] += 1
             self._ret[b] += tr_b
+            self._deliveries[b] += round(tr_b)  # one +1 payment per delivery
             if te or tr:
                 # rware 2.0.0 flags its own step limit as terminated: report it as truncation
                 trunc[b] = bool(tr) or env._cur_steps >= limit

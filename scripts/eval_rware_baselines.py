@@ -40,7 +40,7 @@ def evaluate(name: str, policy: str, *, episodes: int, seed: int) -> dict[str, o
             "seeds": f"{seed}..{seed + episodes - 1}",
             "deliveries_mean": float(deliveries.mean()), "deliveries_std": float(deliveries.std()),
             "return_mean": float(returns.mean()), "return_std": float(returns.std()),
-            "reward": f"rware ({reward_name(env)}: individual)", "wall_s": round(wall, 1)}
+            "reward": f"{reward_name(env)} (rware's individual reward)", "wall_s": round(wall, 1)}
 
 
 def main(argv: list[str] | None = None) -> int:

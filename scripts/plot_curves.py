@@ -5,9 +5,11 @@
         --tags charts/episodic_return eval/success_rate --out curves.png
 
 Runs are grouped by "<env>__<algo>" (the run-name prefix); each group is drawn as the mean over
-its seeds with a min-max band, on a common step grid. ``--hline "scripted=29.9"`` (repeatable)
-draws a baseline's value as a dashed horizontal line on every panel; ``--titles`` replaces the
-panel titles (default: the tags), ``--suptitle`` adds one line above them (budget, seeds).
+its seeds with a min-max band, on a common step grid (up to the shortest seed's last step);
+``--per-run`` draws every run on its own instead (seeds of unequal length).
+``--hline "scripted=29.9"`` (repeatable) draws a baseline's value as a dashed horizontal line on
+every panel; ``--titles`` replaces the panel titles (default: the tags), ``--suptitle`` adds one
+line above them (budget, seeds).
 
     python scripts/plot_curves.py runs/rware-3__* --tags eval/episodic_return \
         --hline "random=0.1" --hline "scripted (centralised)=29.9" --out rware-3_curves.png
@@ -59,12 +61,13 @@ def parse_hline(text: str) -> tuple[str, float]:
 
 def plot(runs: list[Path], tags: list[str], out: Path, smooth: int = 1, *,
          hlines: list[tuple[str, float]] | None = None, titles: list[str] | None = None,
-         suptitle: str | None = None) -> dict[str, list[str]]:
+         suptitle: str | None = None, per_run: bool = False) -> dict[str, list[str]]:
     """Draws ``out``; returns, per tag, the labels of what its panel shows (curves, baselines)."""
     groups: dict[str, list[dict[str, tuple[np.ndarray, np.ndarray]]]] = defaultdict(list)
     for run in runs:
         csv_path = run / "metrics.csv" if run.is_dir() else run
-        groups[group_name(csv_path.parent)].append(read_run(csv_path))
+        name = csv_path.parent.name if per_run else group_name(csv_path.parent)
+        groups[name].append(read_run(csv_path))
     drawn: dict[str, list[str]] = {}
     fig, axes = plt.subplots(1, len(tags), figsize=(5 * len(tags), 3.6), squeeze=False)
     for ax, tag, title in zip(axes[0], tags, titles or tags, strict=True):
@@ -108,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--smooth", type=int, default=1, help="moving-average window (points)")
     p.add_argument("--hline", action="append", type=parse_hline, default=[],
                    metavar="LABEL=VALUE", help="a baseline drawn on every panel (repeatable)")
+    p.add_argument("--per-run", action="store_true", help="one line per run, no seed groups")
     p.add_argument("--titles", nargs="+", help="panel titles, one per tag (default: the tags)")
     p.add_argument("--suptitle", help="one line above the panels")
     p.add_argument("--out", type=Path, default=Path("curves.png"))
@@ -119,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"plot_curves: no metrics.csv in {', '.join(map(str, missing))}", file=sys.stderr)
         return 2
     plot(args.runs, args.tags, args.out, args.smooth, hlines=args.hline, titles=args.titles,
-         suptitle=args.suptitle)
+         suptitle=args.suptitle, per_run=args.per_run)
     print(args.out)
     return 0
 

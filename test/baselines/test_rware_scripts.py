@@ -55,6 +55,8 @@ def test_plot_curves_draws_baselines(tmp_path):
     assert drawn == {"eval/episodic_return": ["rware-3__sdhn (n=1)", "scripted: 29.9",
                                               "random: 0.1"],
                      "charts/none": ["scripted: 29.9", "random: 0.1"]}, drawn
+    drawn = plot_curves.plot([run], ["eval/episodic_return"], out, per_run=True)
+    assert drawn == {"eval/episodic_return": ["rware-3__sdhn__1 (n=1)"]}, drawn
     assert plot_curves.parse_hline("a=b=2.5") == ("a=b", 2.5)
     for bad in ("random", "=1", "random=x"):
         with pytest.raises(argparse.ArgumentTypeError):

@@ -9,7 +9,8 @@ its seeds with a min-max band, on a common step grid (up to the shortest seed's 
 ``--per-run`` draws every run on its own instead (seeds of unequal length).
 ``--hline "scripted=29.9"`` (repeatable) draws a baseline's value as a dashed horizontal line on
 every panel; ``--titles`` replaces the panel titles (default: the tags), ``--suptitle`` adds one
-line above them (budget, seeds).
+line above them (budget, seeds); ``--symlog`` makes the y axis linear up to 1 and logarithmic
+above (a learner near 0 beside a baseline at 30).
 
     python scripts/plot_curves.py runs/rware-3__* --tags eval/episodic_return \
         --hline "random=0.1" --hline "scripted (centralised)=29.9" --out rware-3_curves.png
@@ -28,6 +29,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import EngFormatter
 
 
 def read_run(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -61,7 +63,8 @@ def parse_hline(text: str) -> tuple[str, float]:
 
 def plot(runs: list[Path], tags: list[str], out: Path, smooth: int = 1, *,
          hlines: list[tuple[str, float]] | None = None, titles: list[str] | None = None,
-         suptitle: str | None = None, per_run: bool = False) -> dict[str, list[str]]:
+         suptitle: str | None = None, per_run: bool = False,
+         symlog: bool = False) -> dict[str, list[str]]:
     """Draws ``out``; returns, per tag, the labels of what its panel shows (curves, baselines)."""
     groups: dict[str, list[dict[str, tuple[np.ndarray, np.ndarray]]]] = defaultdict(list)
     for run in runs:
@@ -92,6 +95,12 @@ def plot(runs: list[Path], tags: list[str], out: Path, smooth: int = 1, *,
         ax.set_title(title, fontsize=9)
         drawn[tag] = ax.get_legend_handles_labels()[1]
         ax.set_xlabel("team env-steps")
+        ax.xaxis.set_major_formatter(EngFormatter(sep=""))  # 200k, 1M: no overlapping digits
+        if symlog:
+            ax.set_yscale("symlog", linthresh=1.0)
+            values = [v for line in ax.get_lines() for v in np.asarray(line.get_ydata(), float)]
+            if values and min(values) >= 0:  # no empty negative decade under the curves
+                ax.set_ylim(-0.05, 1.5 * max(*values, 1.0))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     if suptitle:
@@ -111,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--smooth", type=int, default=1, help="moving-average window (points)")
     p.add_argument("--hline", action="append", type=parse_hline, default=[],
                    metavar="LABEL=VALUE", help="a baseline drawn on every panel (repeatable)")
+    p.add_argument("--symlog", action="store_true", help="y linear to 1, logarithmic above")
     p.add_argument("--per-run", action="store_true", help="one line per run, no seed groups")
     p.add_argument("--titles", nargs="+", help="panel titles, one per tag (default: the tags)")
     p.add_argument("--suptitle", help="one line above the panels")
@@ -123,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"plot_curves: no metrics.csv in {', '.join(map(str, missing))}", file=sys.stderr)
         return 2
     plot(args.runs, args.tags, args.out, args.smooth, hlines=args.hline, titles=args.titles,
-         suptitle=args.suptitle, per_run=args.per_run)
+         suptitle=args.suptitle, per_run=args.per_run, symlog=args.symlog)
     print(args.out)
     return 0
 

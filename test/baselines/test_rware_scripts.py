@@ -48,7 +48,7 @@ def test_plot_curves_draws_baselines(tmp_path):
     out = tmp_path / "curves.png"
     assert plot_curves.main([str(run), "--tags", "eval/episodic_return", "--hline",
                              "scripted (centralised)=29.9", "--hline", "random=0.1",
-                             "--titles", "greedy deliveries", "--out", str(out)]) == 0
+                             "--titles", "greedy deliveries", "--symlog", "--out", str(out)]) == 0
     assert out.stat().st_size > 1000
     drawn = plot_curves.plot([run], ["eval/episodic_return", "charts/none"], out,
                              hlines=[("scripted", 29.9), ("random", 0.1)])

@@ -7,7 +7,8 @@ episode each (``round_robin`` order, so env b plays instance b). Tags (CSV and T
     eval/episodic_return  eval/heldout_episodic_return  (under the reward named in the summary)
 
 ``makespan`` is the mean over completed episodes; it is absent (NC) when none completed.
-RWARE has no instance sets: ``eval.episodes`` episodes from ``eval.seed`` as before.
+RWARE has no instance sets: ``eval.episodes`` episodes from ``eval.seed`` as before, and no
+success; its task measure is ``eval/deliveries``, requested shelves delivered per episode.
 """
 
 from __future__ import annotations
@@ -50,6 +51,9 @@ def set_metrics(infix: str, episodes: list[EpisodeStats]) -> dict[str, float]:
     done = [e.makespan for e in episodes if e.makespan is not None]
     if done:
         out[f"eval/{infix}makespan"] = float(np.mean(done))
+    delivered = [e.deliveries for e in episodes if e.deliveries is not None]
+    if delivered:  # environments with a delivery count (RWARE)
+        out[f"eval/{infix}deliveries"] = float(np.mean(delivered))
     out[f"eval/{infix}episodic_return"] = float(np.mean([e.episode_return for e in episodes]))
     out[f"eval/{infix}episode_length"] = float(np.mean([e.length for e in episodes]))
     out[f"eval/{infix}collisions"] = float(np.mean([e.collisions for e in episodes]))
@@ -74,5 +78,7 @@ def headline(metrics: dict[str, float]) -> str:
     if "eval/heldout_success_rate" in metrics:
         parts += [f"held-out success {metrics['eval/heldout_success_rate']:.2f}",
                   f"makespan {ms('heldout_')}"]
+    if "eval/deliveries" in metrics:
+        parts.append(f"deliveries {metrics['eval/deliveries']:.1f}")
     parts.append(f"return {metrics.get('eval/episodic_return', float('nan')):.1f}")
     return ", ".join(parts)

@@ -30,6 +30,7 @@ class EpisodeStats:
     success: bool
     collisions: int  # robot-collision events summed over robots and steps
     formation_error: float  # mean per-step formation error (0 where the env has no formation)
+    deliveries: int | None = None  # RWARE: requested shelves delivered; None elsewhere
 
 
 @dataclass(frozen=True)

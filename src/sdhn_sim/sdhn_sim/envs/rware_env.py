@@ -9,7 +9,11 @@ same warehouse. Size and difficulty are overridable.
 rware 2.0.0 reports the 500-step limit as ``terminated=True, truncated=False``; the adapter
 reports it as what it is, a truncation (``terminated=False, truncated=True``), so learners
 bootstrap. RWARE has no success notion: ``EpisodeStats.makespan`` is None, ``success`` False,
-``collisions`` 0 and ``formation_error`` 0.
+``collisions`` 0 and ``formation_error`` 0. ``deliveries`` counts the requested shelves delivered:
+the registered tasks pay rware's *individual* reward, exactly +1 to one robot per delivery and
+nothing else, so the count is the number of +1 payments (and equals the return). It is not read
+from the request queue: a shelf newly requested while it stands on the other goal is delivered
+twice in one step but replaces one queue slot (seen on rware-9).
 """
 
 from __future__ import annotations
@@ -80,6 +84,9 @@ class RwareEnv:
         self._envs = [make_rware_gym(self.env_id, self.max_steps) for _ in range(self.num_envs)]
         # step the Warehouse itself: the gymnasium wrappers only add per-step checks
         self._raw = [e.unwrapped for e in self._envs]
+        if self._raw[0].reward_type.name != "INDIVIDUAL":  # deliveries are counted from it
+            raise ValueError(f"{self.env_id}: expected rware's individual reward, got "
+                             f"{self._raw[0].reward_type.name}")
         space = self._envs[0].observation_space
         self.obs_size = int(space[0].shape[0])
         self.state_size = self.num_robots * self.obs_size
@@ -87,6 +94,7 @@ class RwareEnv:
         self._pending_seed: list[int | None] = [self._seed + b for b in range(self.num_envs)]
         self._t = [0] * self.num_envs
         self._ret = [0.0] * self.num_envs
+        self._deliveries = [0] * self.num_envs
         self._started = False
         self.robot_rewards: FloatArray = np.zeros((self.num_envs, self.num_robots), np.float32)
 
@@ -96,6 +104,7 @@ class RwareEnv:
         obs, _ = self._raw[b].reset(seed=seed)
         self._t[b] = 0
         self._ret[b] = 0.0
+        self._deliveries[b] = 0
         return tuple(obs)
 
     def reset(self, seed: int | None = None) -> tuple[FloatArray, FloatArray]:
@@ -141,6 +150,7 @@ class RwareEnv:
             team.append(tr_b)
             self._t[b] += 1
             self._ret[b] += tr_b
+            self._deliveries[b] += round(tr_b)  # one +1 payment per delivery
             if te or tr:
                 # rware 2.0.0 flags its own step limit as terminated: report it as truncation
                 trunc[b] = bool(tr) or env._cur_steps >= limit
@@ -161,6 +171,7 @@ class RwareEnv:
                         success=False,
                         collisions=0,
                         formation_error=0.0,
+                        deliveries=self._deliveries[b],
                     )
                 )
                 obs[b] = self._reset_one(b)
@@ -174,6 +185,12 @@ class RwareEnv:
             final_state=final_obs.reshape(nb, -1),
             episodes=episodes,
         )
+
+    @property
+    def warehouses(self) -> list[Any]:
+        """The B raw rware ``Warehouse`` objects, read-only by convention: what a centralised
+        scripted baseline (``rware_scripted.ScriptedPolicy``) plans from."""
+        return list(self._raw)
 
     @property
     def positions(self) -> npt.NDArray[np.int64]:

@@ -1,0 +1,65 @@
+"""scripts/eval_rware_baselines.py on the real rware, and plot_curves' baseline lines."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import importlib.util
+import json
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _script(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(f"sdhn_script_{name}",
+                                                  REPO / "scripts" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_eval_rware_baselines_prints_both_policies(capsys):
+    evaluate = _script("eval_rware_baselines")
+    assert evaluate.main(["rware-3", "--episodes", "1", "--seed", "2", "--json"]) == 0
+    rows = {r["policy"]: r for r in map(json.loads, capsys.readouterr().out.splitlines())}
+    assert set(rows) == {"random", "scripted"}, rows
+    for r in rows.values():
+        assert r["deliveries_mean"] == r["return_mean"] and r["seeds"] == "2..2", r
+        assert "rware" in r["reward"], r
+    assert rows["scripted"]["deliveries_mean"] >= 15 > rows["random"]["deliveries_mean"], rows
+
+
+def test_plot_curves_draws_baselines(tmp_path):
+    plot_curves = _script("plot_curves")
+    run = tmp_path / "rware-3__sdhn__1"
+    run.mkdir()
+    with open(run / "metrics.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["step", "wall_time", "tag", "value"])
+        for step in range(0, 5000, 1000):
+            w.writerow([step, 0, "eval/episodic_return", step / 1000])
+    out = tmp_path / "curves.png"
+    assert plot_curves.main([str(run), "--tags", "eval/episodic_return", "--hline",
+                             "scripted (centralised)=29.9", "--hline", "random=0.1",
+                             "--titles", "greedy deliveries", "--symlog", "--out", str(out)]) == 0
+    assert out.stat().st_size > 1000
+    drawn = plot_curves.plot([run], ["eval/episodic_return", "charts/none"], out,
+                             hlines=[("scripted", 29.9), ("random", 0.1)])
+    assert drawn == {"eval/episodic_return": ["rware-3__sdhn (n=1)", "scripted: 29.9",
+                                              "random: 0.1"],
+                     "charts/none": ["scripted: 29.9", "random: 0.1"]}, drawn
+    drawn = plot_curves.plot([run], ["eval/episodic_return"], out, per_run=True)
+    assert drawn == {"eval/episodic_return": ["rware-3__sdhn__1 (n=1)"]}, drawn
+    assert plot_curves.parse_hline("a=b=2.5") == ("a=b", 2.5)
+    for bad in ("random", "=1", "random=x"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            plot_curves.parse_hline(bad)
+    with pytest.raises(SystemExit):
+        plot_curves.main([str(run), "--tags", "eval/episodic_return", "--titles", "a", "b"])

@@ -239,9 +239,10 @@ def _grid(n: int, width: float = 4.2, height: float = 3.2) -> tuple[Any, list[An
     return fig, flat[:n]
 
 
-def _curves(ax: Any, groups: dict[str, list[Run]], tag: str, title: str) -> None:
+def _curves(ax: Any, groups: dict[str, list[Run]], tag: str, title: str, *,
+            smooth: int = 5, legend: bool = True) -> None:
     for method in _ordered(groups, method_order()):
-        got = seed_curves(groups[method], tag)
+        got = seed_curves(groups[method], tag, smooth=smooth)
         if got is None:
             continue
         grid, vals = got
@@ -251,7 +252,8 @@ def _curves(ax: Any, groups: dict[str, list[Run]], tag: str, title: str) -> None
     ax.set_title(title)
     ax.set_xlabel("team env-steps")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    if legend:
+        ax.legend(fontsize=7)
 
 
 def _by(runs: list[Run], *attrs: str) -> dict[Any, list[Run]]:
@@ -270,13 +272,16 @@ def fig_success(runs: list[Run], out: Path, scripted: Scripted) -> Path | None:
     if not tasks:
         return None
     plt = _plt()
-    fig, axes = plt.subplots(2, len(tasks), figsize=(4.6 * len(tasks), 6.4), squeeze=False)
+    fig, axes = plt.subplots(2, len(tasks), figsize=(4.6 * len(tasks) + 2.0, 6.4), squeeze=False)
     for col, task in enumerate(tasks):
         group = _by([r for r in maif if r.task == task], "method")
         for row, (infix, which) in enumerate(SETS):
             ax = axes[row][col]
+            # Each point is already a mean over the evaluation instances: not smoothed, so the
+            # last point is the final evaluation the table reports.
             _curves(ax, group, f"eval/{infix}success_rate",
-                    f"{task}: {'held-out' if infix else 'training'} instances")
+                    f"{task}: {'held-out' if infix else 'training'} instances", smooth=1,
+                    legend=False)
             for policy, style in (("planner", "--"), ("greedy", ":")):
                 res = scripted.get(task, {}).get((policy, which))
                 if res is not None:
@@ -284,8 +289,9 @@ def fig_success(runs: list[Run], out: Path, scripted: Scripted) -> Path | None:
                                label=SCRIPTED_LABELS[policy])
             ax.set_ylim(-0.03, 1.03)
             ax.set_ylabel(f"greedy success rate ({group[next(iter(group))][0].reward} reward)")
-            ax.legend(fontsize=6)
-    fig.tight_layout()
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="center right", fontsize=7)
+    fig.tight_layout(rect=(0.0, 0.0, 0.7, 1.0))
     path = out / "success.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -348,7 +354,7 @@ def fig_makespan(runs: list[Run], out: Path, scripted: Scripted) -> Path | None:
     plt = _plt()
     tasks = sorted(_by(maif, "task"), key=lambda t: num_robots(_by(maif, "task")[t][0]))
     methods = _ordered(_by(maif, "method"), method_order())
-    fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(tasks) * max(1, len(methods)) / 3, 3.4))
+    fig, ax = plt.subplots(figsize=(3.6 + 1.4 * len(tasks) * max(1, len(methods)) / 3, 3.4))
     width = 0.8 / len(methods)
     tops = []
     for j, method in enumerate(methods):
@@ -376,7 +382,7 @@ def fig_makespan(runs: list[Run], out: Path, scripted: Scripted) -> Path | None:
         if any((policy, "train") in scripted.get(t, {}) for t in tasks):
             handles.append(line)
             labels.append(SCRIPTED_LABELS[policy])
-    ax.legend(handles, labels, fontsize=7)
+    ax.legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_xticks(range(len(tasks)),
                   [f"{num_robots(_by(maif, 'task')[t][0])} robots" for t in tasks])
     ax.set_ylabel("makespan (steps; NC = not completed)")

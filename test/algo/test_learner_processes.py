@@ -10,6 +10,7 @@ SDHN runs with deterministic hyperedges: with sampled ones every rank draws its 
 from __future__ import annotations
 
 import json
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ from sdhn_sim.envs import make_env
 from sdhn_sim.envs.api import BatchedEnv
 from sdhn_train.cli import main as train_main
 from sdhn_train.config import Config, ConfigError, set_field, validate
-from sdhn_train.data_parallel import Group, LearnerProcessError
+from sdhn_train.data_parallel import Group, LearnerProcessError, end_learner_process
 from sdhn_train.ranks import learner_ranks
 from sdhn_train.rollout import Rollout
 from sdhn_train.trainer import Trainer, rank_seed
@@ -61,14 +62,19 @@ def _slice(path: Path, envs: slice) -> Rollout:
 def _rank(rank: int, algo: str, store: str, rollout: str, out: str) -> None:
     """One learner process of the K = 2 update (spawned; module-level so it pickles)."""
     group = Group.join(rank, 2, store)
+    code = 1
     try:
         tr = Trainer(_cfg(algo), _short, run_dir=Path(out).parent)  # same seed: same init
         tr.learner.group = group  # type: ignore[attr-defined]
         tr.learner.update(_slice(Path(rollout), slice(rank * HALF, (rank + 1) * HALF)))
         if rank == 0:
             np.savez(out, **tr.learner.state_dict()[0])
+        code = 0
+    except BaseException:
+        traceback.print_exc()  # os._exit below would swallow it
     finally:
         group.close()
+        end_learner_process(code)  # as the trainer's ranks end
 
 
 @pytest.mark.parametrize("algo", ["sdhn", "mappo"])

@@ -15,10 +15,11 @@ your CPU time, stop. Processes are started and stopped by ``sdhn_train.ranks``.
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Iterable
 from datetime import timedelta
 from enum import IntEnum
-from typing import Any
+from typing import Any, NoReturn
 
 import torch
 import torch.distributed as dist
@@ -38,6 +39,16 @@ class Command(IntEnum):
     ITERATE = 1  # one rollout + update (Trainer.train_iteration)
     SHARD = 2  # gather each rank's environment / collector state into rank 0's checkpoint
     USAGE = 3  # gather each rank's CPU seconds and peak RSS (bench_train)
+
+
+def end_learner_process(code: int) -> NoReturn:
+    """End a spawned learner process (rank >= 1) once its group is closed, without the
+    interpreter's teardown: there gloo's C++ threads are destroyed with the static objects and,
+    now and then, abort the process ('terminate called without an active exception', exit -6;
+    seen once in CI in the K = 2 exactness test) after its work had finished."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 class Group:

@@ -28,7 +28,7 @@ from typing import Any
 import torch.multiprocessing as mp
 
 from sdhn_train.config import Config, apply_dict
-from sdhn_train.data_parallel import Command, Group, LearnerProcessError
+from sdhn_train.data_parallel import Command, Group, LearnerProcessError, end_learner_process
 from sdhn_train.learners.base import NonFiniteLossError
 from sdhn_train.trainer import EnvFactory, Trainer, default_env_factory
 
@@ -86,6 +86,7 @@ def _worker(rank: int, job: _Job, errors: Any) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):  # rank 0 stops us (see the module doc)
         signal.signal(sig, signal.SIG_IGN)
     group: Group | None = None
+    code = 0
     try:
         group = Group.join(rank, job.world, job.store)
         cfg = Config()
@@ -97,10 +98,11 @@ def _worker(rank: int, job: _Job, errors: Any) -> None:
     except BaseException as e:  # any failure is reported to rank 0, then this process ends
         text = " ".join(str(e).split()) or type(e).__name__
         errors.put(f"learner process {rank} failed: {type(e).__name__}: {text}")
-        raise SystemExit(1) from None
+        code = 1
     finally:
         if group is not None:
             group.close()
+    end_learner_process(code)
 
 
 @contextmanager

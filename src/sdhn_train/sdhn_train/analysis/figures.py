@@ -23,6 +23,8 @@ Written to OUTDIR (a figure whose data are absent is skipped and listed in resul
   the held-out instances first, then return under the reward named; on MAIF the scripted
   baselines (``sdhn_sim.envs.maif_scripted``, evaluated here on the runs' evaluation instances)
   are rows of the table.
+- ``scripted.json``: those baselines' results, reused by the next call on the same OUTDIR (delete
+  it after changing the scripted policies).
 Refuses (FigureError) a LOGDIR that is empty, holds something that is not a run, names one
 (task, method, seed) twice, or mixes budgets or suites within a task.
 """
@@ -32,7 +34,7 @@ from __future__ import annotations
 import csv
 import json
 from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +66,7 @@ METHOD_LABEL = {"sdhn": "SDHN", "mappo": "MAPPO", "qmix": "QMIX", "dicg": "DICG"
                 "sdhn_wo_shr": "SDHN w/o SHR"}
 BUDGET_KEYS = (("train", "total_steps"), ("env", "max_steps"), ("env", "reward"))
 SETS = (("", "train"), ("heldout_", "heldout"))  # (metric tag infix, instance set)
+SCRIPTED_CACHE = "scripted.json"  # in OUTDIR: the scripted baselines' results, kept across runs
 
 
 class FigureError(ValueError):
@@ -201,18 +204,33 @@ def seed_curves(runs: list[Run], tag: str, points: int = 100,
 Scripted = dict[str, dict[tuple[str, str], ScriptedResult]]  # task -> (policy, set) -> result
 
 
-def scripted_baselines(runs: list[Run], instances: int | None = None) -> Scripted:
+def scripted_baselines(runs: list[Run], instances: int | None = None,
+                       cache: Path | None = None) -> Scripted:
     """The scripted greedy policy and planner on every MAIF task of ``runs``, on the instances,
-    seed and reward the runs were evaluated with (``instances`` overrides the count)."""
+    seed and reward the runs were evaluated with (``instances`` overrides the count). They are
+    deterministic, and the planner takes minutes on the larger teams, so results are kept in
+    ``cache`` (JSON, keyed by everything they depend on) across calls."""
+    known: dict[str, dict[str, Any]] = {}
+    if cache is not None and cache.is_file():
+        known = json.loads(cache.read_text())
     out: Scripted = {}
     for task, group in _by(runs, "task").items():
         if not task.startswith("maif"):
             continue
         k = instances or min(int(r.config.get("eval", {}).get("instances", 100)) for r in group)
         seed = int(group[0].config.get("eval", {}).get("seed", 0))
-        out[task] = {(policy, which): evaluate_scripted(task, which, policy, instances=k,
-                                                        seed=seed, reward=group[0].reward)
-                     for policy in SCRIPTED_LABELS for _, which in SETS}
+        out[task] = {}
+        for policy in SCRIPTED_LABELS:
+            for _, which in SETS:
+                key = f"{task}/{which}/{policy}/k={k}/seed={seed}/{group[0].reward}"
+                if key not in known:
+                    known[key] = asdict(evaluate_scripted(
+                        task, which, policy, instances=k, seed=seed, reward=group[0].reward))
+                out[task][(policy, which)] = ScriptedResult(**known[key])
+    if cache is not None:
+        tmp = cache.with_suffix(".tmp")
+        tmp.write_text(json.dumps(known, indent=1, sort_keys=True))
+        tmp.replace(cache)
     return out
 
 
@@ -530,7 +548,7 @@ def make_figures(logdir: Path, outdir: Path, scripted_instances: int | None = No
     how many evaluation instances the scripted baselines play (default: the runs')."""
     runs = load_runs(logdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    scripted = scripted_baselines(runs, scripted_instances)
+    scripted = scripted_baselines(runs, scripted_instances, outdir / SCRIPTED_CACHE)
     written: list[Path] = []
     skipped: list[str] = []
     for name, p in (("success", fig_success(runs, outdir, scripted)),

@@ -188,9 +188,9 @@ def _validate_learner_processes(cfg: Config) -> None:
         return
     b = cfg.env.num_envs
     need(b % k == 0, "train.learner_processes", f"a divisor of env.num_envs ({b})", k)
-    # The PPO algorithms are the ones with a target-critic rate; value mixing has no PPO update.
-    need(hasattr(get_algorithm(cfg.algo.name), "default_target_tau"), "train.learner_processes",
-         "1 for the value-mixing algorithms (qmix, hgcn_mix)", k)
+    serial = [a.name for a in ALGORITHMS if not a.data_parallel]
+    need(get_algorithm(cfg.algo.name).data_parallel, "train.learner_processes",
+         f"1 for {', '.join(serial)} (no data-parallel learner)", k)
     need((b // k) % cfg.ppo.num_minibatches == 0, "ppo.num_minibatches",
          f"a divisor of env.num_envs / train.learner_processes ({b // k}) when "
          "train.learner_processes > 1", cfg.ppo.num_minibatches)

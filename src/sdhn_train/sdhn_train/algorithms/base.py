@@ -40,6 +40,12 @@ class Algorithm(Protocol):
     @property
     def config(self) -> type[Section]: ...
 
+    @property
+    def data_parallel(self) -> bool:
+        """Whether its learner runs as K data-parallel processes (``train.learner_processes``;
+        the PPO learner all-reduces its gradients, the value-mixing learner does not)."""
+        ...
+
     def build_learner(self, cfg: Settings, info: EnvInfo, rng: np.random.Generator) -> Learner:
         """The networks and their learner (call after seeding torch)."""
         ...

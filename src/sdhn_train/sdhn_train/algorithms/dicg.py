@@ -86,6 +86,7 @@ class DICG:
 
     name = "dicg"
     config = DICGConfig
+    data_parallel = True
     default_lr = 3e-4
     default_target_tau = 1.0
 

@@ -76,6 +76,7 @@ class HGCNMIX:
 
     name = "hgcn_mix"
     config = HGCNMixConfig
+    data_parallel = False
     default_lr = 5e-4
 
     def build_learner(self, cfg: Settings, info: EnvInfo, rng: np.random.Generator) -> Learner:

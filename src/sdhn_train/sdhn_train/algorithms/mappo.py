@@ -48,6 +48,7 @@ class MLPCritic(Critic):
 class MAPPO:
     name = "mappo"
     config = MAPPOConfig
+    data_parallel = True
     default_lr = 3e-4
     default_target_tau = 1.0
 

@@ -77,6 +77,7 @@ class QMIX:
 
     name = "qmix"
     config = QMIXConfig
+    data_parallel = False
     default_lr = 5e-4
 
     def build_learner(self, cfg: Settings, info: EnvInfo, rng: np.random.Generator) -> Learner:

@@ -47,6 +47,7 @@ class SDHNConfig:
 class SDHN:
     name = "sdhn"
     config = SDHNConfig
+    data_parallel = True
     default_lr = 6e-4
     default_target_tau = 0.01
 

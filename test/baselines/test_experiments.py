@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from sdhn_train.analysis.experiments import (
     DONE,
@@ -22,6 +23,7 @@ from sdhn_train.analysis.experiments import (
     run_suite,
 )
 from sdhn_train.analysis.figures import make_figures
+from sdhn_train.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[2]
 SUITES = ROOT / "configs" / "suites"
@@ -71,6 +73,26 @@ def test_paper_suite_lists_the_comparison() -> None:
     assert {r.seed for r in quick} == {1}
     ablation = next(r for r in runs if r.method == "sdhn_wo_lsk")
     assert ablation.config(Path("x")).sdhn.skew_loss is False
+
+
+@pytest.mark.parametrize("suite", sorted(p.name for p in SUITES.glob("*.yaml")))
+def test_every_shipped_suite_validates_and_its_warm_starts_fit(
+        suite: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every budget of every suite in configs/suites gives valid configs (RunSpec.config
+    validates), and every warm-start actor a suite names loads into that task's actor: a
+    typo or a stale model is found here, not an hour into a suite."""
+    monkeypatch.chdir(ROOT)  # init_from paths are relative to the repository root
+    budgets = yaml.safe_load((SUITES / suite).read_text())["budgets"]
+    checked: set[tuple[str, str]] = set()
+    for budget in budgets:
+        for run in load_suite(SUITES / suite, budget):
+            cfg = run.config(tmp_path)
+            key = (run.task, str(cfg.actor.init_from))
+            if cfg.actor.init_from and key not in checked:
+                checked.add(key)
+                cfg.env.num_envs, cfg.eval.instances = 2, 2
+                cfg.ppo.num_minibatches = 1
+                Trainer(cfg, run_dir=tmp_path / run.name)  # raises ConfigError if it does not fit
 
 
 def test_bad_suites_are_refused(tmp_path: Path) -> None:

@@ -9,7 +9,7 @@ exactly ``--steps`` team transitions learned:
 
 - ``inprocess``: ``python -m sdhn_train.cli`` with one environment, ``ppo.rollout_len`` =
   ``--rollout-steps`` and one minibatch: the batch per update the ROS trainer node uses.
-- ``ros``: ``python -m sdhn_sim.launch`` in train mode (simulator node, one sampling actor process
+- ``ros``: ``python -m sdhn_bringup`` in train mode (simulator node, one sampling actor process
   per robot, trainer node with ``rollout_steps``, ``init_from`` and ``total_steps``); once the
   trainer's status file says the learner has learned ``--steps`` transitions, the launcher is
   stopped. The simulator keeps stepping while the learner updates, so it makes more steps than
@@ -151,7 +151,7 @@ def train_ros(args: argparse.Namespace, seed: int, out: Path) -> RunResult:
     status_file = run_dir / "status" / "trainer.status.json"
     t0 = time.monotonic()
     with (out / f"{name}.log").open("w") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "sdhn_sim.launch", str(config)],
+        proc = subprocess.Popen([sys.executable, "-m", "sdhn_bringup", str(config)],
                                 stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
         status: dict[str, Any] = {}
         try:

@@ -40,7 +40,7 @@ else
 fi
 
 echo "[demo] 3/3 results"
-PLOT=$(.venv/bin/python -m sdhn_sim.launch.plot "$RUN_DIR/deploy" --train-run "$RUN_DIR/train")
+PLOT=$(.venv/bin/python -m sdhn_bringup.plot "$RUN_DIR/deploy" --train-run "$RUN_DIR/train")
 MCAP="$RUN_DIR/deploy/recording.mcap"
 [ -f "$MCAP" ] || { echo "[demo] no recording was written"; exit 1; }
 # The recording itself is plain ROS (rosbags, rosbag2 tools read it); its Foxglove copy adds the

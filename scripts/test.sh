@@ -13,8 +13,8 @@ export ROS_LOG_DIR
 echo "[test] ruff check"
 .venv/bin/ruff check src test scripts
 echo "[test] mypy on src/"
-MYPYPATH=src/sdhn_sim:src/sdhn_policy:src/sdhn_train .venv/bin/mypy \
-  -p sdhn_sim -p sdhn_policy -p sdhn_train
+MYPYPATH=src/sdhn_sim:src/sdhn_policy:src/sdhn_train:src/sdhn_bringup .venv/bin/mypy \
+  -p sdhn_sim -p sdhn_policy -p sdhn_train -p sdhn_bringup
 echo "[test] pytest"
 status=0
 .venv/bin/python -m pytest "$@" || status=$?

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from sdhn_bringup.supervisor import LaunchConfigError, load_config
 from sdhn_sim.envs.registry import env_names
-from sdhn_sim.launch.supervisor import LaunchConfigError, load_config
 from sdhn_sim.lockstep import SimConfig, SimConfigError
 from sdhn_sim.ros.runner import ConfigError as NodeConfigError
 from sdhn_sim.sim_node import PARAMETERS, sim_config

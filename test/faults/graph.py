@@ -22,7 +22,7 @@ from ros.processes import NodeProcess
 
 from sdhn_sim.ros import topics
 
-LAUNCH = [sys.executable, "-m", "sdhn_sim.launch"]
+LAUNCH = [sys.executable, "-m", "sdhn_bringup"]
 _LOG_TIME = re.compile(r"^\[(\w+)\] \[(\d+\.\d+)\] \[([^\]]+)\]: (.*)$")
 
 

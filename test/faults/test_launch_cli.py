@@ -1,4 +1,4 @@
-"""``python -m sdhn_sim.launch`` as a user drives it: a reused run directory, weights that do not
+"""``python -m sdhn_bringup`` as a user drives it: a reused run directory, weights that do not
 fit the environment, unreadable YAML and an unwritable run directory are each one line and exit
 code 2, before any process starts; an actor that cannot act fails (exit 1), it never idles."""
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-LAUNCH = [sys.executable, "-m", "sdhn_sim.launch"]
+LAUNCH = [sys.executable, "-m", "sdhn_bringup"]
 SHIPPED = REPO / "models" / "maif-tiny-sdhn" / "actor.safetensors"
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_sim.launch.supervisor import (
+from sdhn_bringup.supervisor import (
     LaunchConfig,
     LaunchConfigError,
     graph,
@@ -26,7 +26,7 @@ from sdhn_sim.launch.supervisor import (
 
 from .processes import NodeProcess, node_processes
 
-LAUNCH = [sys.executable, "-m", "sdhn_sim.launch", "configs/launch/deploy-tiny.yaml"]
+LAUNCH = [sys.executable, "-m", "sdhn_bringup", "configs/launch/deploy-tiny.yaml"]
 
 
 def launch(weights: Path, run_dir: Path, *sets: str) -> list[str]:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sdhn_sim.launch.supervisor import node_status_parts
+from sdhn_bringup.supervisor import node_status_parts
 from sdhn_sim.ros.status import read_statuses, write_status
 from sdhn_train import transitions as tr
 from sdhn_train.learner_process import (

@@ -285,7 +285,7 @@ def test_launcher_hosts_runs_the_graph_across_namespaces(weights: Path, tmp_path
         sets = [f"hosts.{name}={h.netns}" for name, h in net.hosts.items()
                 if name in ("sim", "recorder")]
         sets += [f"hosts.actor_{i}={net.hosts[f'actor{i}'].netns}" for i in range(N)]
-        args = [sys.executable, "-m", "sdhn_sim.launch", "configs/launch/deploy-tiny.yaml",
+        args = [sys.executable, "-m", "sdhn_bringup", "configs/launch/deploy-tiny.yaml",
                 "--set", f"weights={weights}", "--set", "episodes=2", "--set",
                 f"run_dir={tmp_path / 'run'}", "--set", "team_ns=/sdhn_launch_hosts"]
         for s in sets:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from sdhn_sim.launch.plot import plot_run, reward_name
+from sdhn_bringup.plot import plot_run, reward_name
 
 
 def _run(tmp: Path, reward: str | None) -> Path:

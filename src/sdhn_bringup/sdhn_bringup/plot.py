@@ -3,7 +3,7 @@ second under the reward the simulator named, from ``<run_dir>/episodes.csv`` (wr
 launcher), next to a training curve when given: the per-episode returns of a launcher run in
 train mode (its ``episodes.csv``), or the ``metrics.csv`` of an in-process training run.
 
-    python -m sdhn_sim.launch.plot RUN_DIR [--train-run TRAIN_RUN_DIR] [--out PNG]
+    python -m sdhn_bringup.plot RUN_DIR [--train-run TRAIN_RUN_DIR] [--out PNG]
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Multi-process launcher: one YAML file starts a whole sdhn graph, watches it, and stops it.
 
-    python -m sdhn_sim.launch configs/launch/deploy-tiny.yaml --set episodes=3 --set weights=RUN
+    python -m sdhn_bringup configs/launch/deploy-tiny.yaml --set episodes=3 --set weights=RUN
 
 Starts the simulator, one actor *process* per robot, the trainer (mode ``train``) and the recorder
 (``recorder: true``), each through the ``ros2 run`` shim, all under ``team_ns``, each child's

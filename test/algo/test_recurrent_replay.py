@@ -28,6 +28,7 @@ def test_replayed_log_probs_equal_behaviour_log_probs() -> None:
     assert rollout.truncated.any() and np.abs(rollout.actor_h0).sum() > 0
     r = {"obs": torch.from_numpy(rollout.obs), "resets": torch.from_numpy(rollout.resets()),
          "actor_h0": torch.from_numpy(rollout.actor_h0)}
+    r["actor_in"] = learner.actor.with_robot_id(r["obs"])  # as PPOLearner.update builds it
     with torch.no_grad():
         logits = learner._actor_logits(r, torch.arange(3))
     logp = torch.log_softmax(logits, -1).gather(-1, torch.from_numpy(rollout.actions)[..., None])

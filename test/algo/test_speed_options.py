@@ -38,6 +38,10 @@ def _state(algo: str, sets: dict[str, str], root: Path, iterations: int = 2
 OPTIONS = [
     ("ppo.fused_gru", "false", "true", 1e-5),
     ("ppo.concurrent_actor_critic", "false", "true", 0.0),
+    # process-wide and sticky once set (an earlier Trainer in this process may have set it), so
+    # this pair checks the option runs and changes nothing; test_retain_freed_memory_applies
+    # checks that it takes effect
+    ("train.retain_freed_memory", "false", "true", 0.0),
 ]
 
 
@@ -54,3 +58,14 @@ def test_speed_option_gives_the_straightforward_update(
             np.testing.assert_allclose(got[k], v, atol=tol, rtol=tol, err_msg=k)
         else:
             np.testing.assert_array_equal(got[k], v, err_msg=k)
+
+
+def test_retain_freed_memory_applies() -> None:
+    """On glibc (every machine this trains on) all three mallopt calls are accepted."""
+    import platform
+
+    from sdhn_train.runs import retain_freed_memory
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip(f"not glibc: {platform.libc_ver()}")
+    assert retain_freed_memory(), "mallopt refused a parameter"

@@ -46,7 +46,8 @@ SHORTCUTS = {  # --flag -> config field
 RUN_FILES = ("checkpoints", "config.yaml", "metrics.csv", "actor.safetensors", "summary.json")
 # Fields a resume may change: they change neither the networks, the optimiser nor the data.
 RESUME_SAFE = frozenset({"train.total_steps", "log.checkpoint_interval", "log.progress",
-                         "log.tensorboard", "eval.interval", "train.threads"})
+                         "log.tensorboard", "eval.interval", "train.threads",
+                         "train.retain_freed_memory"})
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -25,13 +25,16 @@ from sdhn_policy.actor_torch import gru_sequence
 def _forward_loop(gi: Tensor, h0: Tensor, w_hh: Tensor, b_hh: Tensor, *,
                   keep: Tensor | None, reset_steps: list[bool]
                   ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """The recurrence given gi = x W_ih^T + b_ih [T, B, 3H]. Returns (out [T, B, H]: the
-    hidden state after each step, gh = h_prev W_hh^T + b_hh [T, B, 3H], rz = (r, z) [T, B, 2H],
-    n [T, B, H]). Every per-step tensor is a slice made once (``unbind``) and written in place
-    (``out=``), so a step is 7 ops."""
+    """The recurrence given gi = x W_ih^T + b_ih [T, B, 3H]. Returns (hist [T + 1, B, H]: h0,
+    then the hidden state after each step, so ``hist[1:]`` is the output and ``hist[:-1]`` the
+    (unmasked) state each step starts from, without a copy; gh = h_prev W_hh^T + b_hh
+    [T, B, 3H], rz = (r, z) [T, B, 2H], n [T, B, H]). Every per-step tensor is a slice made once
+    (``unbind``) and written in place (``out=``), so a step is 7 ops."""
     t_len, b, h3 = gi.shape
     hs = h3 // 3
-    out = gi.new_empty(t_len, b, hs)
+    hist = gi.new_empty(t_len + 1, b, hs)
+    hist[0] = h0
+    out = hist[1:]
     gh = gi.new_empty(t_len, b, h3)
     rz = gi.new_empty(t_len, b, 2 * hs)
     n = gi.new_empty(t_len, b, hs)
@@ -50,13 +53,7 @@ def _forward_loop(gi: Tensor, h0: Tensor, w_hh: Tensor, b_hh: Tensor, *,
         # h' = (1 - z) n + z h = n + z (h - n)
         torch.addcmul(n_s[t], z_s[t], h - n_s[t], out=out_s[t])
         h = out_s[t]
-    return out, gh, rz, n
-
-
-def _previous_hidden(out: Tensor, h0: Tensor, keep: Tensor | None) -> Tensor:
-    """h_prev[t]: the (reset-masked) hidden state step t starts from, [T, B, H]."""
-    h_prev = torch.cat([h0[None], out[:-1]])
-    return h_prev * keep if keep is not None else h_prev
+    return hist, gh, rz, n
 
 
 class _GRULayer(torch.autograd.Function):
@@ -68,27 +65,32 @@ class _GRULayer(torch.autograd.Function):
                 ) -> Tensor:
         t_len, b, _ = x.shape
         gi = torch.addmm(b_ih, x.reshape(t_len * b, -1), w_ih.t()).reshape(t_len, b, -1)
-        out, gh, rz, n = _forward_loop(gi, h0, w_hh, b_hh, keep=keep, reset_steps=reset_steps)
-        ctx.save_for_backward(x, h0, w_ih, w_hh, out, gh, rz, n, keep)
+        hist, gh, rz, n = _forward_loop(gi, h0, w_hh, b_hh, keep=keep, reset_steps=reset_steps)
+        ctx.save_for_backward(x, w_ih, w_hh, hist, gh, rz, n, keep)
         ctx.reset_steps = reset_steps
-        return out
+        return hist[1:]
 
     @staticmethod
     def backward(ctx: Any, grad_out: Tensor) -> tuple[Tensor | None, ...]:
-        x, h0, w_ih, w_hh, out, gh, rz, n, keep = ctx.saved_tensors
+        x, w_ih, w_hh, hist, gh, rz, n, keep = ctx.saved_tensors
         reset_steps: list[bool] = ctx.reset_steps
         t_len, b, hs = n.shape
-        h_prev = _previous_hidden(out, h0, keep)
+        # h_prev[t]: the (reset-masked) hidden state step t starts from, [T, B, H]
+        h_prev = hist[:-1] * keep if keep is not None else hist[:-1]
         r, z, ghn = rz[..., :hs], rz[..., hs:], gh[..., 2 * hs:]
         # pre_r = gi_r + gh_r, pre_z = gi_z + gh_z, pre_n = gi_n + r gh_n; h' = n + z (h - n).
-        # d pre = dh * a with a per gate, vectorised over all T (a_n: d pre_n / dh):
-        a_n = (1.0 - z) * (1.0 - n * n)
-        a_gh = torch.cat([a_n * ghn * r * (1.0 - r),  # d pre_r / dh
-                          (h_prev - n) * z * (1.0 - z),  # d pre_z / dh
-                          a_n * r], dim=-1)  # d gh_n / dh
+        # d pre = dh * a with a per gate, vectorised over all T (a_n: d pre_n / dh). Each gate's
+        # factor is written into its slice of a_gh (no cat: at the actor's T x b*N rows every
+        # full-size temporary and copy is ~1 ms); same products in the same order as before.
+        one_minus_z = 1.0 - z
+        a_n = (1.0 - n * n).mul_(one_minus_z)
+        a_gh = grad_out.new_empty(t_len, b, 3, hs)
+        torch.mul(a_n, ghn, out=a_gh[:, :, 0]).mul_(r).mul_(1.0 - r)  # d pre_r / dh
+        torch.sub(h_prev, n, out=a_gh[:, :, 1]).mul_(z).mul_(one_minus_z)  # d pre_z / dh
+        torch.mul(a_n, r, out=a_gh[:, :, 2])  # d gh_n / dh
         d_gh = grad_out.new_empty(t_len, b, 3, hs)  # d(h_prev W_hh^T + b_hh) per step
         dh_all = grad_out.new_empty(t_len, b, hs)  # d out[t], all paths
-        a_gh_s = a_gh.view(t_len, b, 3, hs).unbind(0)
+        a_gh_s = a_gh.unbind(0)
         d_gh_s, d_gh_flat = d_gh.unbind(0), d_gh.view(t_len, b, 3 * hs).unbind(0)
         dh_s, g_s, z_s = dh_all.unbind(0), grad_out.unbind(0), z.unbind(0)
         dh = grad_out.new_zeros(b, hs)
@@ -99,8 +101,10 @@ class _GRULayer(torch.autograd.Function):
             if keep is not None and reset_steps[t]:
                 dh = dh * keep[t]
         d_gh2 = d_gh.view(t_len * b, 3 * hs)
-        d_gi = torch.cat([d_gh[:, :, :2].reshape(t_len, b, 2 * hs), dh_all * a_n],
-                         dim=-1).view(t_len * b, 3 * hs)
+        d_gi = torch.empty_like(d_gh)  # d(x W_ih^T + b_ih): d_gh's r, z parts, then the n part
+        d_gi[:, :, :2] = d_gh[:, :, :2]
+        torch.mul(dh_all, a_n, out=d_gi[:, :, 2])
+        d_gi = d_gi.view(t_len * b, 3 * hs)
         x2 = x.reshape(t_len * b, -1)
         grad_x = (d_gi @ w_ih).view(x.shape) if ctx.needs_input_grad[0] else None
         grad_h0 = dh if ctx.needs_input_grad[1] else None
@@ -127,7 +131,7 @@ def gru_layer(x: Tensor, h0: Tensor, weights: tuple[Tensor, Tensor, Tensor, Tens
         with torch.no_grad():
             t_len, b, _ = x.shape
             gi = torch.addmm(b_ih, x.reshape(t_len * b, -1), w_ih.t()).reshape(t_len, b, -1)
-            return _forward_loop(gi, h0, w_hh, b_hh, keep=keep, reset_steps=reset_steps)[0]
+            return _forward_loop(gi, h0, w_hh, b_hh, keep=keep, reset_steps=reset_steps)[0][1:]
     out: Tensor = _GRULayer.apply(x, h0, w_ih, w_hh, b_ih, b_hh, keep, reset_steps)
     return out
 

@@ -5,6 +5,7 @@ the metrics log, episode metrics, and the P_H snapshots ``sdhn_train.analysis`` 
 from __future__ import annotations
 
 import csv
+import ctypes
 import io
 import random
 import time
@@ -28,6 +29,32 @@ def seed_everything(seed: int, deterministic: bool, threads: int) -> np.random.G
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(deterministic)
     return np.random.default_rng(seed)
+
+
+# mallopt(3) parameters (glibc's malloc.h)
+_M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
+_MIB = 1 << 20
+
+
+def retain_freed_memory() -> bool:
+    """Make glibc's malloc keep freed memory for reuse: blocks up to 32 MiB (its maximum) come
+    from the heap instead of their own mmap, and the heap is trimmed only past 1 GiB free.
+
+    Why: an update allocates and frees hundreds of large temporaries (a [T, b, N, 64] float
+    tensor is 2.6 MiB). Under glibc's defaults each is a fresh mmap, so every page of it faults
+    on first touch and is zeroed by the kernel, and munmap on free: 80-130 k minor faults per
+    SDHN maif-10 update. Reused heap memory faults once. The numbers computed are the same
+    (this only changes where tensors live); peak RSS stays the peak of live tensors (measured:
+    587-627 against 590-613 MiB). Returns False where there is no glibc (nothing changed)."""
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return all(mallopt(param, value) == 1 for param, value in (
+        (_M_MMAP_THRESHOLD, 32 * _MIB), (_M_TRIM_THRESHOLD, 1024 * _MIB),
+        (_M_TOP_PAD, 64 * _MIB)))
 
 
 def episode_metrics(prefix: str, episodes: list[EpisodeStats]) -> dict[str, float]:

@@ -38,6 +38,7 @@ from sdhn_train.rollout import Rollout
 from sdhn_train.runs import (
     MetricsLog,
     episode_metrics,
+    retain_freed_memory,
     save_ph_snapshot,
     seed_everything,
     trim_metrics,
@@ -80,6 +81,8 @@ class Trainer:
         seed = rank_seed(cfg.train.seed, self.rank)
         num_envs = cfg.env.num_envs // self.world
         self.np_rng = seed_everything(seed, cfg.train.deterministic, cfg.train.threads)
+        if cfg.train.retain_freed_memory:
+            retain_freed_memory()
         self.env = make_training_env(cfg, env_factory, num_envs, seed)
         # training set "" and held-out set; rank 0 alone evaluates
         self.eval_envs = make_eval_envs(cfg, env_factory) if self.rank == 0 else {}

@@ -254,7 +254,7 @@ class PPOLearner:
         return values, adv, value_targets(adv, values)
 
     def _actor_logits(self, r: dict[str, Tensor], envs: Tensor) -> Tensor:
-        obs = self.actor.with_robot_id(r["obs"][:, envs])  # [T, b, N, in]
+        obs = r["actor_in"][:, envs]  # [T, b, N, in]
         t, b, n = obs.shape[:3]
         resets = r["resets"][:, envs, None].expand(t, b, n).reshape(t, b * n)
         h0 = r["actor_h0"][envs].reshape(b * n, -1)
@@ -379,6 +379,9 @@ class PPOLearner:
             "final_state": torch.from_numpy(rollout.final_state),
             "actor_h0": torch.from_numpy(rollout.actor_h0),
         }
+        # the actor's input (observation + one-hot robot id) does not depend on the parameters:
+        # built once per update, not once per minibatch and epoch
+        r["actor_in"] = self.actor.with_robot_id(r["obs"])
         b = rollout.shape[1]
         h0 = (torch.from_numpy(rollout.critic_h0) if rollout.critic_h0 is not None
               else self.critic.initial_state(b))

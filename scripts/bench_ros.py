@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sdhn_sim.ros import topics
+from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.status import EventReader
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -149,12 +149,15 @@ def echo_main(robot: int, ns: str) -> int:
     a = RobotAction()  # built once: the echo does no Python work per message beyond the answer
     a.robot_id = robot
 
-    def on_obs(m: RobotObservation) -> None:
+    def on_obs(data: bytes) -> None:
+        # Raw CDR, read at its offsets, as the actor reads it: cheaper than letting rclpy build a
+        # message (118-143 against 159-217 us of CPU per echo and step, measured at N=10).
+        m = cdr.read_observation(data)
         a.episode, a.step = m.episode, m.step
         pub.publish(a)
 
     node.create_subscription(RobotObservation, topics.absolute(ns, topics.robot_obs(robot)), on_obs,
-                             STEP)
+                             STEP, raw=True)
     ex = EventsExecutor()
     ex.add_node(node)
     print("ready", flush=True)
@@ -196,7 +199,8 @@ def ceiling(n: int, steps: int) -> Window:
             m.step = step[0]
             p.publish(m)
 
-    def on_action(m: RobotAction) -> None:
+    def on_action(data: bytes) -> None:
+        m = cdr.read_action(data)  # raw CDR, as the simulator reads actions
         if m.step != step[0]:
             return
         got.add(m.robot_id)
@@ -206,7 +210,7 @@ def ceiling(n: int, steps: int) -> Window:
             publish()
 
     subs = [node.create_subscription(RobotAction, topics.absolute(ns, topics.robot_action(i)),
-                                     on_action, STEP)
+                                     on_action, STEP, raw=True)
             for i in range(n)]
     ex = EventsExecutor(context=ctx)
     ex.add_node(node)

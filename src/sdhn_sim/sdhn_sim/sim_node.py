@@ -216,6 +216,16 @@ class SimNode(Node):
         stamp = self.get_clock().now().to_msg()
         for i, pub in enumerate(self.obs_pubs):
             pub.publish(self.observation(f, i, stamp))
+        # TeamState is for observers (trainer, recorder, viz); a deployment without them has no
+        # reader of it. A volatile message goes only to readers matched at publish time, so
+        # skipping it while none is matched changes nothing a subscriber can see, and saves
+        # filling, serialising and handing one message of N+1 to DDS every step.
+        if self.state_pub.get_subscription_count():
+            self.publish_state(f, stamp)
+        self.deadline = (float("inf") if f.done
+                         else time.monotonic() + self.cfg.step_deadline)
+
+    def publish_state(self, f: Frame, stamp: Time) -> None:
         s = self._state_msg
         s.header.stamp = stamp
         s.episode, s.step = f.episode, f.step
@@ -225,8 +235,6 @@ class SimNode(Node):
         s.makespan_so_far, s.missed_actions = f.step, f.missed
         s.instance_id = f.instance_id
         self.state_pub.publish(s)
-        self.deadline = (float("inf") if f.done
-                         else time.monotonic() + self.cfg.step_deadline)
 
     def observation(self, f: Frame, i: int, stamp: Time) -> RobotObservation:
         """Robot i's observation of frame f, in robot i's one message object, refilled per step

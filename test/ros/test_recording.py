@@ -69,6 +69,9 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, s
             while any(p.get_subscription_count() == 0 for p in every):
                 assert time.monotonic() < deadline, f"recorder never subscribed:\n{recorder.output}"
                 time.sleep(0.05)
+            # v1 must have reached the recorder before v2 replaces it in the depth-1 writer's
+            # history: a reliable KEEP_LAST 1 writer forgets an unacknowledged sample.
+            assert weights.wait_for_all_acked(rclpy.duration.Duration(seconds=5))
             t0 = time.perf_counter()
             for o in msgs:
                 pubs[o.topic].publish(o.message)

@@ -10,13 +10,15 @@ compression) off the executor thread, so a chunk being compressed never delays a
 Which topics, with which QoS:
 - The contract's topics are subscribed from the start, with their contract profile, so nothing
   published before the next discovery round is missed: ``state``, ``episode`` (STEP),
-  ``policy/weights`` (LATCHED: the latest version is received even if it was published before the
-  recorder started), ``hypergraph`` (SENSOR). As soon as any ``robot_<i>/...`` topic is seen (a
-  publisher *or* a subscriber, e.g. the trainer's), both ``robot_<i>/obs`` and
-  ``robot_<i>/action`` are subscribed (STEP), before that robot's first message.
+  ``policy/weights`` (LATCHED_RECORDER: the latest version is received even if it was published
+  before the recorder started, and versions published back to back are all kept), ``hypergraph``
+  (SENSOR). As soon as any ``robot_<i>/...`` topic is seen (a publisher *or* a subscriber, e.g.
+  the trainer's), both ``robot_<i>/obs`` and ``robot_<i>/action`` are subscribed (STEP), before
+  that robot's first message.
 - Any other topic under ``team_ns`` is found by discovery every ``DISCOVERY_PERIOD_S`` and
-  subscribed with the named profile that matches its publishers (transient-local -> LATCHED,
-  best-effort -> SENSOR, else STEP); a topic with no publisher yet waits for the next round.
+  subscribed with the named profile that matches its publishers (transient-local ->
+  LATCHED_RECORDER, best-effort -> SENSOR, else STEP); a topic with no publisher yet waits for the
+  next round.
 
 One file per run: an existing ``output`` is never overwritten (``-1``, ``-2``... is appended).
 The file is finalised (summary, index) on SIGINT/SIGTERM; a crash leaves it readable up to the
@@ -55,7 +57,7 @@ from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg
 from sdhn_sim.recording.writer import McapRosWriter
 from sdhn_sim.ros import topics
 from sdhn_sim.ros.params import boolean, declare, string
-from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
+from sdhn_sim.ros.qos import LATCHED_RECORDER, SENSOR, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
@@ -66,7 +68,7 @@ STATUS_PERIOD_S = 5.0
 CONTRACT_TOPICS = {  # relative to team_ns: (type, profile)
     topics.STATE: ("sdhn_msgs/msg/TeamState", STEP),
     topics.EPISODE: ("sdhn_msgs/msg/EpisodeSummary", STEP),
-    topics.WEIGHTS: ("sdhn_msgs/msg/PolicyWeights", LATCHED),
+    topics.WEIGHTS: ("sdhn_msgs/msg/PolicyWeights", LATCHED_RECORDER),
     topics.HYPERGRAPH: ("sdhn_msgs/msg/Hypergraph", SENSOR),
 }
 ROBOT_TOPICS = {
@@ -87,7 +89,7 @@ def profile_for(publisher_qos: list[QoSProfile]) -> QoSProfile:
     """The named profile a subscriber needs to match all of these publishers."""
     if publisher_qos and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL
                              for q in publisher_qos):
-        return LATCHED
+        return LATCHED_RECORDER
     if any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in publisher_qos):
         return SENSOR
     return STEP

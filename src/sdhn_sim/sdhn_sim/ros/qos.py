@@ -32,6 +32,17 @@ LATCHED = QoSProfile(
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 
+# A recorder of a latched topic: it matches LATCHED writers (late joiners still get only the
+# latest version) but keeps every version that reaches it. With LATCHED's depth 1 on the reader,
+# a version still waiting for the recorder's callback is overwritten by the next one (seen as a
+# recording with 1 of 2 weights versions when they were published back to back).
+LATCHED_RECORDER = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=16,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+
 # Visual or diagnostic streams (sampled hypergraphs): dropping one is harmless.
 SENSOR = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,

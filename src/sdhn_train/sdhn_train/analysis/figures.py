@@ -63,7 +63,11 @@ def method_order() -> tuple[str, ...]:
 
 METHOD_LABEL = {"sdhn": "SDHN", "mappo": "MAPPO", "qmix": "QMIX", "dicg": "DICG",
                 "hgcn_mix": "HGCN-MIX", "sdhn_wo_lsk": "SDHN w/o $L_{Sk}$",
-                "sdhn_wo_shr": "SDHN w/o SHR"}
+                "sdhn_wo_shr": "SDHN w/o SHR",
+                # the variants the shipped suites (configs/suites/*-warm.yaml) name
+                "sdhn_lambda_sk_pos": "SDHN, λ_Sk = +0.6",
+                "sdhn_generator_1_layer": "SDHN, 1-layer generator",
+                "sdhn_2_epochs": "SDHN, 2 PPO epochs"}
 BUDGET_KEYS = (("train", "total_steps"), ("env", "max_steps"), ("env", "reward"))
 SETS = (("", "train"), ("heldout_", "heldout"))  # (metric tag infix, instance set)
 SCRIPTED_CACHE = "scripted.json"  # in OUTDIR: the scripted baselines' results, kept across runs

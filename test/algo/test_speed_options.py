@@ -60,12 +60,12 @@ def test_speed_option_gives_the_straightforward_update(
             np.testing.assert_array_equal(got[k], v, err_msg=k)
 
 
-def test_retain_freed_memory_applies() -> None:
-    """On glibc (every machine this trains on) all three mallopt calls are accepted."""
+def test_retain_freed_memory_applies_on_glibc_only() -> None:
+    """On glibc (every machine this trains on) all three mallopt calls are accepted; elsewhere
+    the call changes nothing and says so."""
     import platform
 
     from sdhn_train.runs import retain_freed_memory
 
-    if platform.libc_ver()[0] != "glibc":
-        pytest.skip(f"not glibc: {platform.libc_ver()}")
-    assert retain_freed_memory(), "mallopt refused a parameter"
+    glibc = platform.libc_ver()[0] == "glibc"
+    assert retain_freed_memory() is glibc, f"libc {platform.libc_ver()}"

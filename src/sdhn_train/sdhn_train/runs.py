@@ -52,9 +52,11 @@ def retain_freed_memory() -> bool:
     except (OSError, AttributeError):
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    return all(mallopt(param, value) == 1 for param, value in (
+    # every parameter is set even if one is refused (a list, not a short-circuiting generator)
+    accepted = [mallopt(param, value) == 1 for param, value in (
         (_M_MMAP_THRESHOLD, 32 * _MIB), (_M_TRIM_THRESHOLD, 1024 * _MIB),
-        (_M_TOP_PAD, 64 * _MIB)))
+        (_M_TOP_PAD, 64 * _MIB))]
+    return all(accepted)
 
 
 def episode_metrics(prefix: str, episodes: list[EpisodeStats]) -> dict[str, float]:

@@ -21,10 +21,35 @@ import numpy as np
 import numpy.typing as npt
 
 from sdhn_policy.actor_runtime import ActorRuntime
-from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError
+from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
 
 MAX_WEIGHTS_BYTES = 64 * 1024 * 1024
 """Largest weights payload an actor accepts (the actor itself is ~100 kB)."""
+
+BACKENDS = ("numpy", "onnx")
+
+
+def runtime_class(backend: str) -> type[ActorRuntime]:
+    """The runtime that computes the policy: ``numpy`` (default) or ``onnx`` (onnxruntime, imported
+    only when chosen, so a NumPy actor never loads it). Both give the same actions (tested)."""
+    if backend == "numpy":
+        return ActorRuntime
+    if backend == "onnx":
+        from sdhn_policy.onnx_runtime import OnnxActorRuntime
+        return OnnxActorRuntime
+    raise ValueError(f"backend: got {backend!r}; allowed: {', '.join(BACKENDS)}")
+
+
+def runtime_from_file(backend: str, path: str) -> ActorRuntime:
+    """The runtime of a weights file: ``actor.safetensors`` on either backend, or an exported
+    ``actor.onnx`` as it is (backend ``onnx`` only). WeightsError if the file is unusable."""
+    cls = runtime_class(backend)
+    if path.endswith(".onnx"):
+        if backend != "onnx":
+            raise WeightsError(f"an .onnx file runs on backend 'onnx', not {backend!r}")
+        from sdhn_policy.onnx_runtime import OnnxActorRuntime
+        return OnnxActorRuntime.from_onnx_file(path)
+    return cls.from_file(path)
 
 
 @dataclass(frozen=True)
@@ -44,8 +69,10 @@ class ActorCore:
     """The per-robot policy state machine (weights, GRU hidden state, RNG)."""
 
     def __init__(self, robot_id: int, num_robots: int, greedy: bool, seed: int,
-                 runtime: ActorRuntime | None = None) -> None:
+                 runtime: ActorRuntime | None = None, *,
+                 runtime_cls: type[ActorRuntime] = ActorRuntime) -> None:
         self.robot_id = robot_id
+        self.runtime_cls = runtime_cls  # builds the runtime of every weights message
         self.num_robots = num_robots
         self.greedy = greedy
         self.rng = np.random.default_rng([seed, robot_id])
@@ -80,7 +107,7 @@ class ActorCore:
         if len(payload) > MAX_WEIGHTS_BYTES:
             raise OversizedPayloadError(
                 f"oversized payload: {len(payload)} bytes > {MAX_WEIGHTS_BYTES}")
-        rt = ActorRuntime.from_bytes(fmt, version, payload, sha256)
+        rt = self.runtime_cls.from_bytes(fmt, version, payload, sha256)
         self._check(rt)
         self._pending = rt
         return True

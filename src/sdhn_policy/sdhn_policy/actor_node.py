@@ -23,8 +23,7 @@ from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
-from sdhn_policy.actor_core import ActorCore, Decision, Drop
-from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
 from sdhn_policy.weights import WeightsError
 from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.params import boolean, declare, integer, string
@@ -35,10 +34,12 @@ PARAMETERS = {
     "team_ns": (topics.DEFAULT_TEAM_NS, string(f"team namespace; {topics.TEAM_NS_RULE}")),
     "robot_id": (0, integer("this robot's id, 0 <= robot_id < num_robots", 0)),
     "num_robots": (10, integer("team size N", 1)),
-    "weights_file": ("", string("actor .safetensors file (with its .json sidecar); '' = wait "
-                                "for the weights topic")),
+    "weights_file": ("", string("actor .safetensors file (with its .json sidecar), or an "
+                                "exported actor.onnx (backend onnx); '' = wait for the weights "
+                                "topic")),
     "greedy": (False, boolean("argmax actions instead of sampling")),
     "seed": (0, integer("seed of the action sampler", 0)),
+    "backend": ("numpy", string("policy runtime: 'numpy' or 'onnx' (onnxruntime); same actions")),
 }
 FAIL_AFTER = 3  # wrong-length observations before any answer that end the actor
 WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait for "
@@ -58,8 +59,13 @@ class ActorNode(Node):
             raise ConfigError(f"robot_id: got {robot_id}; allowed: 0 <= robot_id < num_robots "
                               f"({num_robots})")
         try:
-            runtime = ActorRuntime.from_file(weights_file) if weights_file else None
-            self.core = ActorCore(robot_id, num_robots, p["greedy"], p["seed"], runtime)
+            runtime_cls = runtime_class(p["backend"])
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+        try:
+            runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
+            self.core = ActorCore(robot_id, num_robots, p["greedy"], p["seed"], runtime,
+                                  runtime_cls=runtime_cls)
         except WeightsError as e:
             raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {WEIGHTS_ALLOWED}") from e
         self.robot_id = robot_id
@@ -77,6 +83,7 @@ class ActorNode(Node):
             self.open_step_topics()
         source = weights_file or f"waiting for {weights_topic}"
         self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
+                               f"backend={p['backend']}, "
                                f"weights: {source} (version {self.core.version})")
 
     def open_step_topics(self) -> None:

@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sdhn_policy.actor_runtime import ActorRuntime
-from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError
+from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
 
 MAX_WEIGHTS_BYTES = 64 * 1024 * 1024
 """Largest weights payload an actor accepts (the actor itself is ~100 kB)."""
@@ -80,7 +80,12 @@ class ActorCore:
         if len(payload) > MAX_WEIGHTS_BYTES:
             raise OversizedPayloadError(
                 f"oversized payload: {len(payload)} bytes > {MAX_WEIGHTS_BYTES}")
-        rt = ActorRuntime.from_bytes(fmt, version, payload, sha256)
+        try:
+            rt = ActorRuntime.from_bytes(fmt, version, payload, sha256)
+        except WeightsError:
+            raise
+        except Exception as e:  # whatever a crafted payload provokes: a rejection, not a crash
+            raise WeightsError(f"weights rejected ({type(e).__name__}): {str(e)[:300]}") from e
         self._check(rt)
         self._pending = rt
         return True

@@ -1,0 +1,76 @@
+"""JSON from untrusted bytes (a message payload, a file someone handed us), parsed with bounds.
+
+The standard parser accepts what a crafted input uses to take a process down: nesting deep
+enough to exhaust the recursion limit (``RecursionError``, which no ``except ValueError`` catches),
+``NaN`` / ``Infinity`` literals and overflowing numbers (``1e999`` is ``inf``; ``int(inf)`` raises
+``OverflowError``), and integers of thousands of digits. :func:`loads` refuses all of them with
+:class:`JsonInputError` (a ``ValueError``), so a caller handles every bad input in one place:
+
+    try:
+        header = bounded_json.loads(payload[8:8 + n])
+    except bounded_json.JsonInputError as e:
+        drop("bad_header", str(e))
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+MAX_DEPTH = 32
+"""Deepest nesting of arrays/objects accepted (our headers and sidecars use 3)."""
+MAX_INT_DIGITS = 19
+"""Longest integer literal accepted (an int64 has 19 digits)."""
+
+
+class JsonInputError(ValueError):
+    """The bytes are not JSON within the bounds; the message says which bound."""
+
+
+def _reject_constant(name: str) -> Any:
+    raise JsonInputError(f"non-finite number {name} (only finite numbers are allowed)")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise JsonInputError(f"number {text[:40]} overflows a float (only finite numbers are "
+                             "allowed)")
+    return value
+
+
+def _bounded_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise JsonInputError(f"integer of {len(text)} digits (at most {MAX_INT_DIGITS} allowed)")
+    return int(text)
+
+
+def depth(value: Any) -> int:
+    """Nesting depth of parsed JSON (a scalar is 0, ``[]`` is 1), without recursion."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        item, d = stack.pop()
+        if isinstance(item, dict):
+            item = list(item.values())
+        if isinstance(item, list):
+            deepest = max(deepest, d + 1)
+            stack.extend((child, d + 1) for child in item)
+    return deepest
+
+
+def loads(data: bytes | str, max_depth: int = MAX_DEPTH) -> Any:
+    """Parse ``data`` as JSON; :class:`JsonInputError` when it is not valid UTF-8 JSON, nests
+    deeper than ``max_depth``, or holds a non-finite or oversized number."""
+    try:
+        value = json.loads(data, parse_constant=_reject_constant, parse_float=_finite_float,
+                           parse_int=_bounded_int)
+    except JsonInputError:
+        raise
+    except RecursionError:
+        raise JsonInputError(f"nested deeper than {max_depth} levels") from None
+    except (ValueError, UnicodeDecodeError, TypeError) as e:  # JSONDecodeError is a ValueError
+        raise JsonInputError(f"not JSON: {e}") from None
+    if depth(value) > max_depth:
+        raise JsonInputError(f"nested deeper than {max_depth} levels")
+    return value

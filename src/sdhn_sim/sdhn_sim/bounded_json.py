@@ -21,7 +21,9 @@ from typing import Any
 MAX_DEPTH = 32
 """Deepest nesting of arrays/objects accepted (our headers and sidecars use 3)."""
 MAX_INT_DIGITS = 19
-"""Longest integer literal accepted (an int64 has 19 digits)."""
+"""Longest integer literal accepted by default (an int64 has 19 digits)."""
+STATE_FILE_INT_DIGITS = 200
+"""For our own state files (checkpoints hold 128-bit RNG states, 39 digits)."""
 
 
 class JsonInputError(ValueError):
@@ -40,10 +42,13 @@ def _finite_float(text: str) -> float:
     return value
 
 
-def _bounded_int(text: str) -> int:
-    if len(text.lstrip("-")) > MAX_INT_DIGITS:
-        raise JsonInputError(f"integer of {len(text)} digits (at most {MAX_INT_DIGITS} allowed)")
-    return int(text)
+def _int_parser(max_digits: int) -> Any:
+    def parse(text: str) -> int:
+        if len(text.lstrip("-")) > max_digits:
+            raise JsonInputError(f"integer of {len(text)} digits (at most {max_digits} allowed)")
+        return int(text)
+
+    return parse
 
 
 def depth(value: Any) -> int:
@@ -59,12 +64,16 @@ def depth(value: Any) -> int:
     return deepest
 
 
-def loads(data: bytes | str, max_depth: int = MAX_DEPTH) -> Any:
+def loads(data: bytes | str, max_depth: int = MAX_DEPTH, finite: bool = True,
+          max_int_digits: int = MAX_INT_DIGITS) -> Any:
     """Parse ``data`` as JSON; :class:`JsonInputError` when it is not valid UTF-8 JSON, nests
-    deeper than ``max_depth``, or holds a non-finite or oversized number."""
+    deeper than ``max_depth``, holds an integer longer than ``max_int_digits`` or
+    (``finite``, the default) a non-finite number. Our own state files relax the last two
+    (``finite=False``: a NaN metric; ``max_int_digits``: a 128-bit RNG state)."""
+    strict: dict[str, Any] = {"parse_constant": _reject_constant, "parse_float": _finite_float}
     try:
-        value = json.loads(data, parse_constant=_reject_constant, parse_float=_finite_float,
-                           parse_int=_bounded_int)
+        value = json.loads(data, parse_int=_int_parser(max_int_digits),
+                           **(strict if finite else {}))
     except JsonInputError:
         raise
     except RecursionError:

@@ -100,3 +100,12 @@ def test_a_slow_client_loses_old_messages_and_never_blocks_the_caller(
             server.log(VIZ_SCENE, blob, k)  # returns at once however full things are
     assert wait_for(lambda: any("messages dropped: slow client" in ln for ln in lines), 15), (
         lines)
+
+
+def test_close_stops_listening() -> None:
+    server = VizServer("127.0.0.1", 0, 2, "test", lambda line: None)
+    port = server.port
+    server.close()
+    assert wait_for(lambda: not server._thread.is_alive()), "the accept loop outlived close()"
+    with pytest.raises(ConnectionRefusedError):
+        socket.create_connection(("127.0.0.1", port), timeout=5).close()

@@ -182,6 +182,8 @@ class VizServer:
 
     def close(self) -> None:
         self._ws.socket_closed.set()  # a handshake still under way is refused
+        with contextlib.suppress(OSError):  # wakes the accept loop (close alone does not)
+            self.sock.shutdown(socket.SHUT_RDWR)
         self.sock.close()
         with self._lock:
             clients = list(self._clients)

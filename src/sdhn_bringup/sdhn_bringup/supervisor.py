@@ -53,6 +53,7 @@ from typing import IO, Any
 
 import yaml
 
+from sdhn_sim.data_files import fastdds_profile
 from sdhn_sim.envs.registry import env_names, team_size
 from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.overrides import OverrideError, set_field
@@ -60,7 +61,6 @@ from sdhn_sim.ros import topics
 from sdhn_sim.ros.status import READY_ENV, EventReader, read_statuses
 
 MODES = ("deploy", "train")
-FASTDDS_PROFILE = Path(__file__).resolve().parent.parent / "data" / "fastdds.xml"
 RESTART_POLICIES = ("never", "on-failure")
 
 
@@ -107,17 +107,27 @@ class LaunchConfig:
     hosts: dict[str, str] = field(default_factory=dict)  # child name -> network namespace
 
 
+WEIGHTS_ALLOWED = ("an actor .safetensors file (with its .json sidecar) or a run directory "
+                   "holding actor.safetensors")
+
+
 def resolve_weights(path: str) -> Path:
-    """A weights file from a file path or a run directory (actor.safetensors in it)."""
+    """A weights file from a file path or a run directory (its top-level actor.safetensors).
+
+    Only that one name in a directory: any other pick (the newest, the last in sort order,
+    anywhere below) could silently deploy a different run's or an old checkpoint's actor."""
     p = Path(path)
     if p.is_dir():
-        for candidate in (p / "actor.safetensors", *sorted(p.glob("**/actor*.safetensors"))[-1:]):
-            if candidate.is_file():
-                return candidate
-        raise LaunchConfigError(f"weights: no actor*.safetensors in directory {p}")
+        candidate = p / "actor.safetensors"
+        if candidate.is_file():
+            return candidate
+        found = sorted(str(q.relative_to(p)) for q in p.glob("**/*.safetensors"))
+        hint = f" (it holds {', '.join(found[:3])}{', ...' if len(found) > 3 else ''}: " \
+               "name the file)" if found else ""
+        raise LaunchConfigError(f"weights: directory {p} has no actor.safetensors{hint}; "
+                                f"allowed: {WEIGHTS_ALLOWED}")
     if not p.is_file():
-        raise LaunchConfigError(f"weights: {p} does not exist; allowed: an actor .safetensors "
-                                "file (with its .json sidecar) or a run directory holding one")
+        raise LaunchConfigError(f"weights: {p} does not exist; allowed: {WEIGHTS_ALLOWED}")
     return p
 
 
@@ -139,6 +149,11 @@ def check_weights_fit(path: Path, env: str) -> None:
         ("team size", spec.num_robots if spec.use_robot_id else n, n)) if have != want]
     if wrong:
         raise LaunchConfigError(f"weights: {path} does not fit {env}: " + ", ".join(wrong))
+
+
+NETNS_DIR = Path("/run/netns")
+NETNS_NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+"""A name as ``ip netns`` lists it (a file in /run/netns: never a path or '.'/'..')."""
 
 
 def validate(cfg: LaunchConfig) -> None:
@@ -175,7 +190,8 @@ def validate(cfg: LaunchConfig) -> None:
     for child, netns in cfg.hosts.items():
         if child not in names:
             raise LaunchConfigError(f"hosts.{child}: no such child; allowed: {', '.join(names)}")
-        if not (Path("/run/netns") / str(netns)).exists():
+        if not NETNS_NAME.fullmatch(netns) or netns in (".", "..") or not (
+                NETNS_DIR / netns).is_file():
             raise LaunchConfigError(f"hosts.{child}: no network namespace {netns!r}; allowed: "
                                     "one listed by `ip netns list`")
     for key, value in cfg.trainer.items():
@@ -442,7 +458,7 @@ class Launcher:
         env["PYTHONUNBUFFERED"] = "1"
         env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
         # Faster participant announcements, so a restarted child matches the others in < 1 s.
-        env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
+        env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(fastdds_profile()))
         if cfg.hosts:
             # Separate hosts: data must cross the network (on one machine Fast DDS would pass it
             # through shared memory, around the namespaces), and discovery must reach the subnet.

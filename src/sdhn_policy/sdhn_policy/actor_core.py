@@ -107,7 +107,12 @@ class ActorCore:
         if len(payload) > MAX_WEIGHTS_BYTES:
             raise OversizedPayloadError(
                 f"oversized payload: {len(payload)} bytes > {MAX_WEIGHTS_BYTES}")
-        rt = self.runtime_cls.from_bytes(fmt, version, payload, sha256)
+        try:
+            rt = self.runtime_cls.from_bytes(fmt, version, payload, sha256)
+        except WeightsError:
+            raise
+        except Exception as e:  # whatever a crafted payload provokes: a rejection, not a crash
+            raise WeightsError(f"weights rejected ({type(e).__name__}): {str(e)[:300]}") from e
         self._check(rt)
         self._pending = rt
         return True

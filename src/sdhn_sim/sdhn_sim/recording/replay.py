@@ -22,7 +22,9 @@
                    WebSocket at ws://HOST:PORT (--host 127.0.0.1, --port 8765, 0 = any free port),
                    paced by the recorded log times at --rate X (default 1); playback starts when
                    a client subscribes, ends after the last state (--loop: starts over until
-                   Ctrl-C). A port in use is one line and exit code 2.
+                   Ctrl-C or SIGTERM, which both end with one line and exit code 0). At most 8
+                   viewers at once, each logged (the viz node's server). A port in use (--port)
+                   or an address that is not this machine's (--host) is one line, exit code 2.
 
 With no action flag it prints the topics and message counts. Exit codes: 0 done (also for a
 truncated recording: the readable part is used and one line says where it stops), 1 the requested
@@ -33,10 +35,9 @@ arguments, a port in use, or not an MCAP file.
 from __future__ import annotations
 
 import argparse
-import json
 import os
+import signal
 import sys
-import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -178,6 +179,10 @@ def add_viz(rec: Recording, out: Path | None) -> int:
         print(f"replay: {rec.path} already has viz channels ({counts}); nothing written")
         return 0
     requested = out or rec.path.with_name(f"{rec.path.stem}-viz.mcap")
+    if not requested.parent.is_dir():  # never create directories the user did not ask for
+        print(f"replay: error: --out: {requested.parent} is not a directory; allowed: a new "
+              ".mcap file in an existing directory", file=sys.stderr)
+        return 2
     target = fresh_path(requested)  # never the input, never an existing file
     # Atomic: written beside the target, renamed when complete; a failed write (a full disk)
     # leaves nothing (sdhn_sim.litter cleans a killed writer's temporary file).
@@ -200,11 +205,12 @@ def add_viz(rec: Recording, out: Path | None) -> int:
 
 
 def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool) -> int:
-    """Serve the viz channels derived from ``rec`` on a Foxglove WebSocket, paced by log time."""
-    import foxglove
-
+    """Serve the viz channels derived from ``rec`` on a Foxglove WebSocket, paced by log time.
+    The live viz node's server (its only listening socket, at most ``REPLAY_MAX_CLIENTS``
+    viewers, each logged). SIGTERM stops it as Ctrl-C does: one line, exit 0."""
     from sdhn_sim.recording.reader import decode, team_kind, team_namespace
-    from sdhn_sim.viz.channels import VIZ_TOPICS, VizDeriver, channel_specs
+    from sdhn_sim.viz.channels import VizDeriver
+    from sdhn_sim.viz.server import BindError, VizServer, ws_url
 
     ns = team_namespace(rec)
     if ns is None:
@@ -213,47 +219,21 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
     team = [(m, kind) for m in rec.messages
             if (kind := team_kind(m.topic, m.type_name, m.encoding, ns)) is not None]
     team.sort(key=lambda mk: mk[0].log_time_ns)
-    from foxglove.websocket import ChannelView, Client, ServerListener
-
-    class FirstSubscriber(ServerListener):
-        """Set once any client subscribes to any channel: playback waits for a viewer."""
-
-        def __init__(self) -> None:
-            self.subscribed = threading.Event()
-
-        def on_subscribe(self, client: Client, channel: ChannelView) -> None:
-            self.subscribed.set()
-
-    fox = foxglove.Context()
-    listener = FirstSubscriber()
     try:
-        server = foxglove.start_server(name=f"sdhn replay {rec.path.name}", host=host, port=port,
-                                       context=fox, server_listener=listener)
-    except RuntimeError as error:
-        reason = str(error).split(": ", 1)[-1]
-        print(f"replay: error: --port: cannot serve on {host}:{port} ({reason})",
-              file=sys.stderr)
+        server = VizServer(host, port, REPLAY_MAX_CLIENTS, f"sdhn replay {rec.path.name}",
+                           lambda line: print(f"replay: {line}", flush=True))
+    except BindError as error:
+        print(f"replay: error: --{error.field}: {error.message}", file=sys.stderr)
         return 2
-    channels = {}
-    for topic in VIZ_TOPICS:  # as the live viz node advertises them
-        spec = channel_specs()[topic]
-        if spec.message_encoding == "json":
-            channels[topic] = foxglove.Channel(topic, schema=json.loads(spec.schema_data),
-                                               context=fox)
-        else:
-            schema = foxglove.Schema(name=spec.schema_name, encoding=spec.schema_encoding,
-                                     data=spec.schema_data)
-            channels[topic] = foxglove.Channel(topic, schema=schema,
-                                               message_encoding=spec.message_encoding,
-                                               context=fox)
     span = (team[-1][0].log_time_ns - team[0][0].log_time_ns) / 1e9 if team else 0.0
     states = sum(1 for _, k in team if k == "state")
-    print(f"replay: serving {rec.path} on ws://{host}:{server.port} ({states} states, "
+    print(f"replay: serving {rec.path} on {ws_url(host, server.port)} ({states} states, "
           f"{span:.1f} s recorded, rate {rate}x); playback starts when a client subscribes, "
           "Ctrl-C stops", flush=True)
     sent = 0
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        while not listener.subscribed.wait(0.1):
+        while not server.new_subscriber.wait(0.1):
             pass
         while True:
             deriver = VizDeriver()
@@ -268,7 +248,7 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
                 except Exception:  # malformed CDR in the file: skip that message
                     continue
                 for v in out:
-                    channels[v.topic].log(v.data)
+                    server.log(v.topic, v.data, v.log_time_ns)
                     sent += 1
             print(f"replay: served {sent} viz messages ({states} states) in "
                   f"{time.monotonic() - start:.2f} s", flush=True)
@@ -278,8 +258,18 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
     except KeyboardInterrupt:
         print(f"replay: stopped after {sent} viz messages", flush=True)
     finally:
-        server.stop()
+        signal.signal(signal.SIGTERM, previous)
+        server.close()
     return 0
+
+
+REPLAY_MAX_CLIENTS = 8
+"""Most viewers of ``replay --foxglove`` at once (as the viz node's default ``max_clients``)."""
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    """SIGTERM (a service manager, ``kill``): stop as Ctrl-C does, with the closing line."""
+    raise KeyboardInterrupt
 
 
 def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.0) -> int:
@@ -290,13 +280,13 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
     from rclpy.context import Context
     from rclpy.duration import Duration
 
+    from sdhn_sim.data_files import fastdds_replay_profile
     from sdhn_sim.recording.reader import current_cdr
     from sdhn_sim.recording.schema import message_class
     from sdhn_sim.ros import topics
     from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
-    profile_file = Path(__file__).resolve().parent.parent / "data" / "fastdds-replay.xml"
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(profile_file))
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(fastdds_replay_profile()))
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("replay", context=context)

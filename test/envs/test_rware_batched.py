@@ -154,3 +154,20 @@ def test_bad_input_is_refused():
         env.step(np.zeros((2, 2), dtype=np.int64))
     with pytest.raises(ValueError, match="size"):
         RwareBatchedEnv(3, size="huge")
+
+
+def test_simulator_and_viewer_see_the_tiny_tasks():
+    """The simulator's single-env view reads robot cells from the batched env; the viewer's
+    static description of a tiny task is rware's tiny floor."""
+    from sdhn_sim.envs import make_single_env
+    from sdhn_sim.viz.world import world_info
+
+    single = make_single_env("rware-tiny-4ag", seed=3)
+    single.reset()
+    real = make_env("rware-tiny-4ag", num_envs=1, seed=3, backend="rware")
+    real.reset()
+    assert isinstance(real, RwareEnv)
+    np.testing.assert_array_equal(single.positions, real.positions[0])
+    info = world_info("rware-tiny-4ag")
+    assert (info.num_robots, info.width, info.height) == (4, 10, 11)
+    assert info.rware_racks is not None and info.rware_racks.sum() == make_layout(1, 3).num_shelves

@@ -363,7 +363,7 @@ class RwareBatchedEnv:
         commit = mv & on_cycle & (cyc_len != 2)
         acyclic = mv & reaches_free
         if acyclic.any():
-            chosen, tie_envs = self._longest_chains(acyclic, target.reshape(-1), nxt, free)
+            chosen, tied = self._longest_chains(acyclic, target.reshape(-1), nxt, free)
             ok = chosen.copy()
             cur = nxt[:free]
             chosen_f = np.append(chosen, True)
@@ -371,20 +371,24 @@ class RwareBatchedEnv:
                 ok &= chosen_f[cur]
                 cur = nxt[cur]
             commit |= acyclic & ok
-            if tie_envs.size:
+            if tied.any():
                 out = commit.reshape(nb, n)
-                for b in tie_envs.tolist():
-                    out[b] = _networkx_commit(self._xy[cell[b]], self._xy[target[b]])
+                tied_bn = tied.reshape(nb, n)
+                for b in np.flatnonzero(tied_bn.any(axis=1)).tolist():
+                    cells = {(int(x), int(y)) for x, y in self._xy[target[b, tied_bn[b]]]}
+                    in_comp, nx_commit = _networkx_commit(self._xy[cell[b]],
+                                                          self._xy[target[b]], cells)
+                    out[b] = np.where(in_comp, nx_commit, out[b])
                     self.ties_resolved_by_networkx += 1
                 return out
         return commit.reshape(nb, n)
 
     def _longest_chains(self, acyclic: npt.NDArray[np.bool_], target: npt.NDArray[np.int64],
                         nxt: npt.NDArray[np.int64], free: int,
-                        ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64]]:
+                        ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
         """For robots in acyclic components: whether each is the deepest robot queued into its
-        target cell (``dag_longest_path`` follows the deepest predecessor), and the envs where
-        two predecessors of one cell are equally deep (networkx's order decides there)."""
+        target cell (``dag_longest_path`` follows the deepest predecessor), and whether it is
+        one of two or more equally deep ones (networkx's order decides there)."""
         nb, n = self.num_envs, self.num_robots
         idx = np.flatnonzero(acyclic)
         env_of = idx // n
@@ -408,7 +412,9 @@ class RwareBatchedEnv:
         tie = top & (count[gt] > 1)
         chosen = np.zeros(free, dtype=bool)
         chosen[idx[top]] = True
-        return chosen, np.unique(env_of[tie])
+        tied = np.zeros(free, dtype=bool)
+        tied[idx[tie]] = True
+        return chosen, tied
 
     def _deliver(self) -> FloatArray:
         """rware's delivery loop over the goals, for the envs where a requested shelf stands on
@@ -470,10 +476,12 @@ class RwareBatchedEnv:
 
 
 def _networkx_commit(start: npt.NDArray[np.int64], target: npt.NDArray[np.int64],
-                     ) -> npt.NDArray[np.bool_]:
-    """Which robots rware's networkx resolution commits, built as rware builds it: edges
-    (x, y) -> target (x, y) added in robot order, per weakly connected component a cycle (not a
-    swap) or else ``dag_longest_path``. Used only where equally long chains tie."""
+                     tied_cells: set[tuple[int, int]],
+                     ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """rware's networkx resolution of the components holding ``tied_cells``, built as rware
+    builds it (the whole graph: edges (x, y) -> target (x, y) added in robot order, since the
+    order networkx iterates a component in depends on it), per component a cycle (not a swap)
+    or else ``dag_longest_path``. Returns (robot in such a component, robot committed)."""
     import networkx as nx
 
     graph: Any = nx.DiGraph()
@@ -481,8 +489,14 @@ def _networkx_commit(start: npt.NDArray[np.int64], target: npt.NDArray[np.int64]
     for p, (tx, ty) in zip(pos, target.tolist(), strict=True):
         graph.add_edge(p, (int(tx), int(ty)))
     robot_at = {p: i for i, p in enumerate(pos)}
+    in_comp = np.zeros(len(pos), dtype=bool)
     commit = np.zeros(len(pos), dtype=bool)
     for nodes in nx.weakly_connected_components(graph):
+        if tied_cells.isdisjoint(nodes):
+            continue
+        for p in nodes:
+            if p in robot_at:
+                in_comp[robot_at[p]] = True
         comp = graph.subgraph(nodes).copy()
         try:
             cycle = nx.algorithms.find_cycle(comp)
@@ -494,4 +508,4 @@ def _networkx_commit(start: npt.NDArray[np.int64], target: npt.NDArray[np.int64]
         for p in on_path:
             if p in robot_at:
                 commit[robot_at[p]] = True
-    return commit
+    return in_comp, commit

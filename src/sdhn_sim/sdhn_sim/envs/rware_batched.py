@@ -51,7 +51,8 @@ from .rware_env import NUM_ACTIONS, RWARE_DIFFICULTIES, rware_env_id
 
 # rware's registered sizes: (shelf rows, shelf columns); column height 8 for all of them
 RWARE_LAYOUTS = {"tiny": (1, 3), "small": (2, 3), "medium": (2, 5), "large": (3, 5)}
-DIFFICULTY_FACTOR = {"easy": 2.0, "normal": 1.0, "hard": 0.5}
+DIFFICULTY_FACTOR = {"easy": 2.0, "normal": 1.0, "hard": 0.5}  # request queue = N x factor
+assert set(DIFFICULTY_FACTOR) == set(RWARE_DIFFICULTIES)  # the adapter's names, same meaning
 COLUMN_HEIGHT = 8
 NOOP, FORWARD, LEFT, RIGHT, TOGGLE = range(NUM_ACTIONS)
 # rware Direction values: UP 0, DOWN 1, LEFT 2, RIGHT 3, as (dx, dy)
@@ -128,7 +129,6 @@ class RwareBatchedEnv:
         self.sensor_range = r = int(sensor_range)
         self.layout = lay = make_layout(*RWARE_LAYOUTS[size])
         self.queue_size = int(n * DIFFICULTY_FACTOR[difficulty])
-        assert set(DIFFICULTY_FACTOR) == set(RWARE_DIFFICULTIES)
         self.obs_size = 8 + (2 * r + 1) ** 2 * 7
         self.state_size = n * self.obs_size
         self._seed = int(seed)

@@ -1,4 +1,4 @@
-"""scripts/eval_rware_baselines.py on the real rware, and plot_curves' baseline lines."""
+"""scripts/eval_rware_baselines.py on both RWARE backends, and plot_curves' baseline lines."""
 
 from __future__ import annotations
 
@@ -25,15 +25,23 @@ def _script(name: str) -> ModuleType:
     return mod
 
 
-def test_eval_rware_baselines_prints_both_policies(capsys):
+def test_eval_rware_baselines_prints_every_policy(capsys):
     evaluate = _script("eval_rware_baselines")
     assert evaluate.main(["rware-3", "--episodes", "1", "--seed", "2", "--json"]) == 0
     rows = {r["policy"]: r for r in map(json.loads, capsys.readouterr().out.splitlines())}
-    assert set(rows) == {"random", "scripted"}, rows
+    assert set(rows) == {"random", "scripted", "decentralised"}, rows
     for r in rows.values():
         assert r["deliveries_mean"] == r["return_mean"] and r["seeds"] == "2..2", r
         assert "rware" in r["reward"], r
     assert rows["scripted"]["deliveries_mean"] >= 15 > rows["random"]["deliveries_mean"], rows
+    assert rows["decentralised"]["deliveries_mean"] >= 5, rows
+
+
+def test_eval_rware_baselines_refuses_an_unknown_policy(capsys):
+    evaluate = _script("eval_rware_baselines")
+    assert evaluate.main(["rware-3", "--policies", "random,greedy"]) == 2
+    err = capsys.readouterr().err
+    assert "--policies" in err and "greedy" in err and "decentralised" in err, err
 
 
 def test_plot_curves_draws_baselines(tmp_path):

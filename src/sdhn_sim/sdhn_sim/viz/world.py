@@ -33,7 +33,7 @@ from foxglove.messages import Timestamp
 
 from sdhn_sim.envs.maif import COORD_FEATURES, OBS_SIZE, RADIUS, WINDOW
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS, MaifConfig, load_instances
-from sdhn_sim.envs.registry import RWARE_TASKS, env_names
+from sdhn_sim.envs.registry import RWARE_TASKS, env_names, rware_task_size
 
 FloatArray = npt.NDArray[np.float32]
 IntArray = npt.NDArray[np.int64]
@@ -114,7 +114,7 @@ def world_info(env_name: str) -> WorldInfo:
         from sdhn_sim.envs.rware_env import make_rware_gym, rware_env_id
 
         n = RWARE_TASKS[env_name]
-        gym_env = make_rware_gym(rware_env_id(n), 500)
+        gym_env = make_rware_gym(rware_env_id(n, rware_task_size(env_name)), 500)
         raw = gym_env.unwrapped
         obs_size = int(gym_env.observation_space[0].shape[0])
         racks = np.asarray(raw.highways) == 0

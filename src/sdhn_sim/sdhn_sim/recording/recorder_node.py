@@ -159,10 +159,7 @@ class RecorderNode(Node):
         super().__init__("recorder", context=context)
         p = declare(self, PARAMETERS)
         output, viz = str(p["output"]), bool(p["viz"])
-        try:
-            self.ns = topics.check_team_ns(p["team_ns"])
-        except topics.NamespaceError as e:
-            raise ConfigError(str(e)) from None
+        self.ns = topics.check_team_ns(p["team_ns"])
         requested = Path(output or f"runs/recording-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
         if requested.suffix != ".mcap":
             raise ConfigError(f"output: {output!r}; allowed: a path ending in .mcap")

@@ -18,6 +18,9 @@ class DropKind(StrEnum):
     # messages that cannot be read at all
     UNDECODABLE = "undecodable"
     NOT_STARTED = "not_started"  # an action before step 0 or after the last episode
+    # which environment (viewers)
+    UNKNOWN_ENV = "unknown_env"
+    ENV_MISMATCH = "env_mismatch"  # a message of another environment than the one drawn
     # whose robot
     UNKNOWN_ROBOT = "unknown_robot"  # robot id outside 0..N-1
     WRONG_ROBOT = "wrong_robot"  # robot id differs from the topic's (or the actor's) robot
@@ -31,6 +34,9 @@ class DropKind(StrEnum):
     # what
     WRONG_OBS_LENGTH = "wrong_obs_length"
     WRONG_STATE_LENGTH = "wrong_state_length"
+    WRONG_SIZE = "wrong_size"  # another array (positions, P_H, incidence) of the wrong size
+    OUT_OF_GRID = "out_of_grid"  # a position outside the map
+    BAD_VALUE = "bad_value"  # P_H outside [0, 1], a skewness not finite
     NON_FINITE_OBS = "non_finite_obs"
     NON_FINITE_STATE = "non_finite_state"
     ACTION_OUT_OF_RANGE = "action_out_of_range"
@@ -59,6 +65,8 @@ class DropKind(StrEnum):
 DESCRIPTIONS: dict[DropKind, str] = {
     DropKind.UNDECODABLE: "undecodable CDR",
     DropKind.NOT_STARTED: "action before step 0 or after the end",
+    DropKind.UNKNOWN_ENV: "unknown environment",
+    DropKind.ENV_MISMATCH: "another environment than the one drawn",
     DropKind.UNKNOWN_ROBOT: "unknown robot id",
     DropKind.WRONG_ROBOT: "robot id differs from the topic's robot",
     DropKind.WRONG_TEAM_SIZE: "wrong num_robots",
@@ -69,6 +77,9 @@ DESCRIPTIONS: dict[DropKind, str] = {
     DropKind.DUPLICATE_STATE: "duplicate state",
     DropKind.WRONG_OBS_LENGTH: "wrong observation length",
     DropKind.WRONG_STATE_LENGTH: "wrong state length",
+    DropKind.WRONG_SIZE: "array of the wrong size",
+    DropKind.OUT_OF_GRID: "position outside the map",
+    DropKind.BAD_VALUE: "value out of range or not finite",
     DropKind.NON_FINITE_OBS: "NaN/Inf in an observation",
     DropKind.NON_FINITE_STATE: "NaN/Inf in a state",
     DropKind.ACTION_OUT_OF_RANGE: "action out of range",

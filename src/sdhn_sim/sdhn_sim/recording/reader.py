@@ -36,6 +36,7 @@ from mcap.records import Channel, Chunk, Header, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rclpy.serialization import deserialize_message
 
+from sdhn_sim.drops import DropKind
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.recording.schema import message_class
 from sdhn_sim.ros import topics
@@ -279,7 +280,7 @@ def write_with_viz(rec: Recording, out: Path, chunk_bytes: int = 256 * 1024) -> 
             try:
                 msg = decode(m)
             except Exception:  # malformed CDR: counted like any message that cannot be drawn
-                deriver.dropped[f"{kind}/undecodable"] += 1
+                deriver.dropped[f"{kind}/{DropKind.UNDECODABLE}"] += 1
                 continue
             viz.write(deriver.derive(kind, msg, m.log_time_ns))
         writer.finish()

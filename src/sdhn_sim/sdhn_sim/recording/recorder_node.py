@@ -52,6 +52,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
+from sdhn_sim.drops import DropKind
 from sdhn_sim.recording.reader import fresh_path
 from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg_schema
 from sdhn_sim.recording.writer import McapRosWriter
@@ -124,7 +125,7 @@ class VizWorker:
             try:
                 msg = deserialize_message(data, message_class(type_name))
             except Exception:  # malformed CDR: counted like any message that cannot be drawn
-                self.deriver.dropped[f"{kind}/undecodable"] += 1
+                self.deriver.dropped[f"{kind}/{DropKind.UNDECODABLE}"] += 1
                 continue
             try:
                 out = self.deriver.derive(kind, msg, log_time_ns)

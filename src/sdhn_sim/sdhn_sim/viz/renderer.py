@@ -11,6 +11,7 @@ from typing import Any
 
 from foxglove.messages import RawImage, SceneUpdate
 
+from sdhn_sim.drops import DropKind
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.viz.draw import hypergraph_entities, p_h_image, robot_entities, static_entities
@@ -88,7 +89,7 @@ class VizRenderer:
         name = str(msg.env_name)
         if self.env and name != self.env:
             raise BadInput(
-                "env_mismatch", f"episode of {name!r} but this viewer draws {self.env!r}"
+                DropKind.ENV_MISMATCH, f"episode of {name!r} but this viewer draws {self.env!r}"
             )
         r = EpisodeResult.from_message(msg)
         # the JSON the episode channel serves: the result's fields, the name as "env"

@@ -213,7 +213,7 @@ def test_sim_drops_each_hostile_action_kind(tmp_path: Path) -> None:
     assert missed.get(4) == 1 and missed.get(7) == 1, f"missed per step {missed}"
     assert all(v == 0 for s, v in missed.items() if s not in (4, 7)), f"missed {missed}"
     counts = stop_counts(out, "totals:")
-    expected = {"duplicate": 2, "out_of_range": 2, "stale_step": 2, "future_step": 2,
+    expected = {"duplicate_action": 2, "action_out_of_range": 2, "stale_step": 2, "future_step": 2,
                 "unknown_robot": 2}
     assert counts == expected, f"sim drop counts {counts}, expected {expected}\n{out}"
     logged = drop_lines(out, "dropped action")

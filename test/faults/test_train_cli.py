@@ -1,7 +1,7 @@
 """``train`` as a user drives it (the real console script, as a subprocess): resume takes the
 run's saved config and never writes into the run before its checkpoint loaded, falls back past a
 damaged checkpoint, refuses unsafe changes and reused names; Ctrl-C saves a checkpoint (with two
-learner processes too, none left behind); a resume
+data-parallel ranks too, none left behind); a resume
 after a kill leaves no duplicate metric rows; every bad input is one line and exit 2."""
 
 from __future__ import annotations

@@ -194,7 +194,7 @@ def test_viz_serves_robots_at_the_state_cells_and_survives_bad_input(team: TeamP
         team.wait_matched()
         team.state.publish(team.team_state(0, size=7))  # wrong size
         team.state.publish(team.team_state(0, env_name="maif-nope"))  # unknown env
-        assert viz.wait_for_line("dropped state: wrong_size", 10), viz.output
+        assert viz.wait_for_line("dropped state: wrong_state_length", 10), viz.output
 
         async def watch() -> tuple[Any, Any, Any, dict[str, Any]]:
             async with websockets.connect(
@@ -233,7 +233,7 @@ def test_viz_serves_robots_at_the_state_cells_and_survives_bad_input(team: TeamP
     assert (image.height, image.width, image.encoding) == (4 * 12, 2 * 12, "rgb8")
     assert metrics["env"] == ENV and metrics["dropped"] == 2, metrics
     assert code == 0, viz.output
-    assert "state/unknown_env=1" in viz.output and "state/wrong_size=1" in viz.output
+    assert "state/unknown_env=1" in viz.output and "state/wrong_state_length=1" in viz.output
 
 
 def test_viz_encodes_nothing_without_a_client(team: TeamPublisher) -> None:

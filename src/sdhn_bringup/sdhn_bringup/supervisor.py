@@ -55,6 +55,7 @@ import yaml
 
 from sdhn_sim.data_files import fastdds_profile
 from sdhn_sim.envs.registry import env_names, team_size
+from sdhn_sim.episode import CSV_FIELDS, EpisodeResult
 from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.overrides import OverrideError, set_field
 from sdhn_sim.ros import topics
@@ -308,7 +309,7 @@ def _entry_package(script: Path) -> str | None:
 
 def graph(cfg: LaunchConfig) -> list[ChildSpec]:
     """The children of one run, in start order."""
-    ns, run = topics.check_team_ns(cfg.team_ns), Path(cfg.run_dir).resolve()
+    ns, run = cfg.team_ns, Path(cfg.run_dir).resolve()  # ns checked by validate()
     common = _param("team_ns", ns)
     children: list[ChildSpec] = []
     if cfg.recorder:
@@ -405,21 +406,6 @@ class Child:
             self.proc.send_signal(sig)
 
 
-# episodes.csv: the outcome first (success, makespan), the return second, then the rest.
-CSV_FIELDS = ["episode", "completed", "makespan", "return", "length", "collisions",
-              "missed_actions", "policy_version", "instance_id", "wall_s"]
-
-
-def episode_row(event: dict[str, Any], wall_s: float) -> dict[str, Any]:
-    """One episodes.csv row from the simulator's episode event (an EpisodeResult as JSON)."""
-    completed = bool(event.get("completed"))
-    return {"episode": int(event["episode"]), "completed": completed,
-            "makespan": event.get("makespan") if completed else "NC",
-            "return": f"{float(event['episode_return']):.3f}", "length": int(event["length"]),
-            "collisions": int(event.get("collisions", 0)),
-            "missed_actions": int(event.get("missed_actions", 0)),
-            "policy_version": int(event.get("policy_version", 0)),
-            "instance_id": int(event.get("instance_id", -1)), "wall_s": f"{wall_s:.2f}"}
 
 
 def node_status_parts(statuses: dict[str, dict[str, Any]]) -> list[str]:
@@ -513,7 +499,7 @@ class Launcher:
                 self.position = (int(event["episode"]), int(event["step"]))
                 self.step_rate = float(event["steps_per_s"])
             elif kind == "episode":
-                row = episode_row(event, time.monotonic() - self.t0)
+                row = EpisodeResult.from_event(event).to_csv_row(time.monotonic() - self.t0)
                 self.episodes.append(row)
                 self.steps_done += row["length"]
                 if self.t_steps0 is not None:

@@ -22,6 +22,7 @@ import numpy.typing as npt
 
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
+from sdhn_sim.drops import DropKind
 
 MAX_WEIGHTS_BYTES = 64 * 1024 * 1024
 """Largest weights payload an actor accepts (the actor itself is ~100 kB)."""
@@ -61,7 +62,7 @@ class Decision:
 
 @dataclass(frozen=True)
 class Drop:
-    kind: str  # e.g. "wrong_obs_length"; counted per kind
+    kind: DropKind  # counted per kind
     reason: str  # human-readable detail for the log
 
 
@@ -131,17 +132,17 @@ class ActorCore:
         if done:
             return None
         if robot_id != self.robot_id or num_robots != self.num_robots:
-            return Drop("wrong_robot", f"observation for robot {robot_id} of {num_robots}, "
+            return Drop(DropKind.WRONG_ROBOT, f"observation for robot {robot_id} of {num_robots}, "
                         f"this is robot {self.robot_id} of {self.num_robots}")
         self._swap()  # between steps: the previous step is answered, this one not yet started
         if self.runtime is None or self.hidden is None:
-            return Drop("no_weights", "no policy weights yet (weights_file empty and nothing "
-                        "received on the weights topic)")
+            return Drop(DropKind.NO_WEIGHTS, "no policy weights yet (weights_file empty and "
+                        "nothing received on the weights topic)")
         if obs.shape != (self.runtime.spec.obs_size,):
-            return Drop("wrong_obs_length", f"observation has length {obs.size}, the policy "
+            return Drop(DropKind.WRONG_OBS_LENGTH, f"observation has length {obs.size}, the policy "
                         f"expects {self.runtime.spec.obs_size}")
         if not np.isfinite(obs).all():
-            return Drop("non_finite_obs", "observation contains NaN or Inf")
+            return Drop(DropKind.NON_FINITE_OBS, "observation contains NaN or Inf")
         order = self._order(episode, step)
         if order is not None:
             return order
@@ -166,9 +167,9 @@ class ActorCore:
         if self.episode is None or self.last_step is None or step == 0:
             return None
         if (episode, step) <= (self.episode, self.last_step):
-            return Drop("stale_step", f"episode {episode} step {step} is not after the last "
+            return Drop(DropKind.STALE_STEP, f"episode {episode} step {step} is not after the last "
                         f"answered episode {self.episode} step {self.last_step}")
         if episode != self.episode or step > self.last_step + 1:
-            return Drop("future_step", f"episode {episode} step {step} skips ahead of the last "
-                        f"answered episode {self.episode} step {self.last_step}")
+            return Drop(DropKind.FUTURE_STEP, f"episode {episode} step {step} skips ahead of the "
+                        f"last answered episode {self.episode} step {self.last_step}")
         return None

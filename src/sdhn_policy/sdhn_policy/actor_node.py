@@ -25,6 +25,7 @@ from rclpy.subscription import Subscription
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
 from sdhn_policy.weights import WeightsError
+from sdhn_sim.drops import DropKind
 from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.params import boolean, declare, integer, string
 from sdhn_sim.ros.qos import LATCHED, STEP
@@ -51,10 +52,7 @@ class ActorNode(Node):
         super().__init__("actor", context=context)
         p = declare(self, PARAMETERS)
         robot_id, num_robots, weights_file = p["robot_id"], p["num_robots"], p["weights_file"]
-        try:
-            self.ns = topics.check_team_ns(p["team_ns"])
-        except topics.NamespaceError as e:
-            raise ConfigError(str(e)) from None
+        self.ns = topics.check_team_ns(p["team_ns"])
         if robot_id >= num_robots:
             raise ConfigError(f"robot_id: got {robot_id}; allowed: 0 <= robot_id < num_robots "
                               f"({num_robots})")
@@ -113,7 +111,7 @@ class ActorNode(Node):
         try:
             msg = cdr.read_observation(data)
         except cdr.CdrError as e:
-            self.drop("undecodable", f"observation: {e}")
+            self.drop(DropKind.UNDECODABLE, f"observation: {e}")
             return
         out = self.core.on_obs(msg.episode, msg.step, msg.robot_id, msg.num_robots, msg.obs,
                                done=msg.terminated or msg.truncated)
@@ -133,7 +131,7 @@ class ActorNode(Node):
             # Weights that do not fit the environment: the simulator re-sends step 0, every
             # copy the wrong length. One stray message after acting is only dropped (hostile
             # input must not end an actor); FAIL_AFTER of them before any answer end it (exit 1).
-            if out.kind == "wrong_obs_length" and not self.answered:
+            if out.kind == DropKind.WRONG_OBS_LENGTH and not self.answered:
                 self.unfit += 1
                 if self.unfit >= FAIL_AFTER:
                     self.failed_reason = (f"robot {self.robot_id} cannot act: {out.reason}, "

@@ -33,6 +33,7 @@ from safetensors.numpy import save as st_save
 
 from sdhn_policy.features import check_transform, feature_size
 from sdhn_sim import bounded_json
+from sdhn_sim.drops import DropKind
 from sdhn_sim.litter import clean_stale_tmp
 
 ACTOR_FORMAT = "sdhn-actor/2"
@@ -55,7 +56,7 @@ class WeightsError(ValueError):
     """A weights payload or file was rejected; ``reason`` says why, ``kind`` names the class of
     fault (an actor counts and logs rejections once per kind)."""
 
-    kind = "bad_weights"
+    kind = DropKind.BAD_WEIGHTS
 
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
@@ -65,31 +66,31 @@ class WeightsError(ValueError):
 class UnknownFormatError(WeightsError):
     """The message names a weights format this runtime does not read."""
 
-    kind = "unknown_format"
+    kind = DropKind.UNKNOWN_FORMAT
 
 
 class Sha256MismatchError(WeightsError):
     """The payload does not hash to the sha256 the message carries."""
 
-    kind = "bad_sha256"
+    kind = DropKind.BAD_SHA256
 
 
 class BadTensorsError(WeightsError):
     """The payload is no valid safetensors blob, or its tensors do not match the spec."""
 
-    kind = "bad_tensors"
+    kind = DropKind.BAD_TENSORS
 
 
 class OversizedPayloadError(WeightsError):
     """The payload is larger than an actor accepts."""
 
-    kind = "oversized_payload"
+    kind = DropKind.OVERSIZED_PAYLOAD
 
 
 class IncompatibleWeightsError(WeightsError):
     """Valid weights that this actor cannot use (e.g. trained for another team size)."""
 
-    kind = "incompatible_weights"
+    kind = DropKind.INCOMPATIBLE_WEIGHTS
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,6 @@
-"""``sdhn_sim replay FILE [--summary] [--rate X] [--export-episode K --out DIR] [--add-viz
-[--out NEW.mcap]] [--foxglove [--host H] [--port P] [--rate X] [--loop]]``.
+"""``sdhn_sim replay FILE [--summary] [--rate X] [--export-episode K [--out DIR] [--gif OUT.gif]
+[--mp4 OUT.mp4] [--hypergraph]] [--add-viz [--out NEW.mcap]] [--foxglove [--host H] [--port P]
+[--rate X] [--loop]]``.
 
 --summary          per-episode table: the simulator's EpisodeSummary messages, recomputed from the
                    recorded TeamState for episodes without one (source column says which).
@@ -11,8 +12,14 @@
                    unacknowledged sample, and once more before exiting; a slow subscriber slows
                    the replay instead of losing messages. Messages not acknowledged within
                    --ack-timeout are counted, named in one line, and the exit code is 1.
---export-episode K PNG frames (frame_<step>.png) of episode K rendered from the recorded TeamState
---out DIR          positions, on the MAIF map of the recorded instance id (recording.reader).
+--export-episode K episode K rendered from the recorded TeamState positions, on the MAIF map of
+--out DIR          the recorded instance id (recording.reader): PNG frames (frame_<step>.png) into
+--gif OUT.gif      DIR, and/or an animated GIF / an MP4 with goals outlined, trails (--trail N
+--mp4 OUT.mp4      steps), a caption with the outcome and, with --hypergraph, the latest sampled
+                   hypergraph (recording.animation); --fps F (default 8), --every K (every K-th
+                   step and the last; default 1), --cell-px (default 16 for PNG, 10 for GIF/MP4).
+                   K = completed: the last episode whose EpisodeSummary says completed (the last
+                   finished one, said so, when none completed).
 --add-viz          write a copy with the viz channels (/viz/scene, /viz/hypergraph,
 --out NEW.mcap     /viz/hypergraph/p_h, /viz/metrics, /viz/episodes) derived from the recorded
                    team messages, for a recording made with viz:=false (default NEW:
@@ -58,6 +65,33 @@ MIN_RATE, MAX_RATE = 0.001, 1000.0
 
 
 
+def episode_spec(text: str) -> int | str:
+    """An episode number, or ``completed`` (resolved against the recording by ``pick_episode``)."""
+    if text == "completed":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}; allowed: an episode number or "
+                                         "'completed'") from None
+
+
+def pick_episode(rec: Recording, spec: int | str) -> int | None:
+    """The episode ``--export-episode`` names; None (after one line) when there is none."""
+    if isinstance(spec, int):
+        return spec
+    rows = episode_rows(rec)
+    done = [r.episode for r, _ in rows if r.completed]
+    if done:
+        return done[-1]
+    if rows:
+        print(f"replay: no recorded episode completed; exporting the last finished one "
+              f"(episode {rows[-1].result.episode})")
+        return rows[-1].result.episode
+    print(f"replay: error: {rec.path} has no finished episode to export", file=sys.stderr)
+    return None
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="replay", description="Summarise, republish or render "
                                      "an sdhn MCAP recording.")
@@ -69,11 +103,25 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="with --rate: seconds to wait for subscribers before publishing")
     parser.add_argument("--ack-timeout", type=float, default=10.0, metavar="S",
                         help="with --rate: seconds to wait for subscribers' acknowledgements")
-    parser.add_argument("--export-episode", type=int, default=None, metavar="K",
-                        help="write PNG frames of episode K (needs --out)")
+    parser.add_argument("--export-episode", type=episode_spec, default=None, metavar="K",
+                        help="render episode K (a number, or 'completed': the last episode "
+                        "whose summary says completed, else the last one) with --out, --gif "
+                        "or --mp4")
     parser.add_argument("--out", type=Path, default=None, metavar="PATH",
                         help="directory for --export-episode frames; file for --add-viz")
-    parser.add_argument("--cell-px", type=int, default=16, help="pixels per grid cell in frames")
+    parser.add_argument("--cell-px", type=int, default=None,
+                        help="pixels per grid cell in frames (default 16 for PNG, 10 for GIF/MP4)")
+    parser.add_argument("--gif", type=Path, default=None, metavar="OUT.gif",
+                        help="with --export-episode: write an animated GIF of the episode")
+    parser.add_argument("--mp4", type=Path, default=None, metavar="OUT.mp4",
+                        help="with --export-episode: write an MP4 of the episode")
+    parser.add_argument("--fps", type=float, default=8.0, help="GIF/MP4 frames per second")
+    parser.add_argument("--every", type=int, default=1, metavar="K",
+                        help="GIF/MP4: every K-th step (and always the last)")
+    parser.add_argument("--trail", type=int, default=8, metavar="N",
+                        help="GIF/MP4: steps of trail behind each robot (0 = none)")
+    parser.add_argument("--hypergraph", action="store_true",
+                        help="GIF/MP4: draw the latest recorded sampled hypergraph")
     parser.add_argument("--add-viz", action="store_true",
                         help="write a copy with the derived /viz/* channels (--out NEW.mcap)")
     parser.add_argument("--foxglove", action="store_true",
@@ -94,8 +142,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             parser.error(f"--{name.replace('_', '-')}: {getattr(args, name)}; allowed: 0..3600")
     if args.export_episode is not None and args.add_viz:
         parser.error("--export-episode and --add-viz: one at a time (each takes --out)")
-    if args.export_episode is not None and args.out is None:
-        parser.error("--export-episode K and --out DIR go together")
+    animated = args.gif is not None or args.mp4 is not None
+    if args.export_episode is not None and args.out is None and not animated:
+        parser.error("--export-episode K needs --out DIR, --gif OUT.gif or --mp4 OUT.mp4")
+    if (animated or args.hypergraph) and args.export_episode is None:
+        parser.error("--gif, --mp4 and --hypergraph go with --export-episode K")
+    for flag, path, suffix in (("--gif", args.gif, ".gif"), ("--mp4", args.mp4, ".mp4")):
+        if path is not None and path.suffix.lower() != suffix:
+            parser.error(f"{flag}: {path}; allowed: a path ending in {suffix}")
+    if not 0.5 <= args.fps <= 60:
+        parser.error(f"--fps: {args.fps}; allowed: 0.5..60")
+    if args.every < 1:
+        parser.error(f"--every: {args.every}; allowed: >= 1")
+    if args.trail < 0:
+        parser.error(f"--trail: {args.trail}; allowed: >= 0")
     if args.out is not None and args.export_episode is None and not args.add_viz:
         parser.error("--out goes with --export-episode K or --add-viz")
     if args.add_viz and args.out is not None and args.out.suffix != ".mcap":
@@ -104,7 +164,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--port: {args.port}; allowed: 0..65535 (0 = any free port)")
     if (args.host != "127.0.0.1" or args.port != 8765 or args.loop) and not args.foxglove:
         parser.error("--host, --port and --loop go with --foxglove")
-    if args.cell_px < 3:
+    if args.cell_px is not None and args.cell_px < 3:
         parser.error(f"--cell-px: {args.cell_px}; allowed: >= 3")
     return args
 
@@ -126,9 +186,15 @@ def main(argv: list[str] | None = None) -> int:
     code = 0
     if args.summary:
         print(format_rows(episode_rows(rec)))
+    if args.export_episode is not None:
+        args.export_episode = pick_episode(rec, args.export_episode)
+        if args.export_episode is None:
+            return 1
     try:
-        if args.export_episode is not None:
-            code = export(rec, args.export_episode, args.out, args.cell_px)
+        if args.export_episode is not None and args.out is not None:
+            code = export(rec, args.export_episode, args.out, args.cell_px or 16)
+        if args.export_episode is not None and code == 0 and (args.gif or args.mp4):
+            code = export_animation(rec, args)
         if args.add_viz:
             code = max(code, add_viz(rec, args.out))
     except OSError as e:  # a full disk, a read-only or missing directory
@@ -168,6 +234,35 @@ def export(rec: Recording, episode: int, out: Path, cell_px: int) -> int:
     for step, image in zip(frames.steps, frames.images, strict=True):
         Image.fromarray(image).save(out / f"frame_{step:05d}.png")
     print(f"wrote {len(frames.images)} frames of episode {episode} to {out} ({frames.map_note})")
+    return 0
+
+
+def export_animation(rec: Recording, args: argparse.Namespace) -> int:
+    """``--gif`` / ``--mp4`` of ``--export-episode`` (recording.animation)."""
+    from sdhn_sim.recording.animation import (
+        NoHypergraphError,
+        episode_animation,
+        write_gif,
+        write_mp4,
+    )
+
+    try:
+        anim = episode_animation(rec, args.export_episode, cell_px=args.cell_px or 10,
+                                 trail=args.trail, hypergraph=args.hypergraph, every=args.every)
+    except KeyError:
+        print(f"replay: error: episode {args.export_episode} has no recorded state",
+              file=sys.stderr)
+        return 1
+    except NoHypergraphError as e:
+        print(f"replay: error: --hypergraph: {e}", file=sys.stderr)
+        return 1
+    h, w = anim.frames[0].shape[:2]
+    graphs = f", hypergraph on {anim.hypergraph_frames}" if args.hypergraph else ""
+    for path, write in ((args.gif, write_gif), (args.mp4, write_mp4)):
+        if path is not None:
+            write(anim, path, args.fps)
+            print(f"wrote {path}: episode {anim.episode}, {len(anim.frames)} frames "
+                  f"({w}x{h}, {args.fps:g} fps{graphs}), {anim.outcome}; {anim.map_note}")
     return 0
 
 

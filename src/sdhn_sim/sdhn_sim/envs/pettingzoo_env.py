@@ -15,7 +15,7 @@ global state a centralised critic trains on. Rewards are per robot where the env
 them (MAIF's per-robot terms, RWARE's individual delivery reward); their sum is the team reward
 the in-process trainer uses. When the episode ends every agent is terminated or truncated at once
 and ``agents`` becomes empty, as PettingZoo's parallel API requires. ``infos[agent]["episode"]``
-on the last step holds the episode's metrics (success, makespan, deliveries, ...).
+on the last step holds the episode's metrics (completed, makespan, deliveries, ...).
 
 ``JointEnv`` is the same environment as one Gymnasium env (observation [N, D], a
 ``MultiDiscrete([A] * N)`` joint action, the team reward); ``register_gymnasium_envs()`` registers

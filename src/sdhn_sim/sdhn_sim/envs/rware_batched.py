@@ -318,7 +318,7 @@ class RwareBatchedEnv:
             for b in finished.tolist():
                 episodes.append(EpisodeStats(
                     env_index=b, episode_return=float(self._ret[b]), length=int(self._t[b]),
-                    makespan=None, success=False, collisions=0, formation_error=0.0,
+                    makespan=None, completed=False, collisions=0, formation_error=0.0,
                     deliveries=int(self._deliveries[b])))
                 self._reset_one(b)
             self._fill_grids()

@@ -251,7 +251,9 @@ class ActorNode(LifecycleNode):
 
     def on_obs(self, data: bytes) -> None:
         t0 = time.perf_counter()
-        if self.core is None:
+        if self.core is None or self.action_pub is None:
+            # Not active: an observation the executor had queued before deactivate closed the
+            # subscription still arrives here once; the simulator counts the step as missed.
             return
         # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per step.
         try:
@@ -263,7 +265,6 @@ class ActorNode(LifecycleNode):
                                done=msg.terminated or msg.truncated)
         if isinstance(out, Decision):
             self.answered = True
-            assert self.action_pub is not None
             # One message, refilled per step (rclpy serialises at publish): no per-step message,
             # Header and Time objects. The stamp is the wall clock the node's ROS clock reads
             # (no simulated time in this graph), without building rclpy Time objects.

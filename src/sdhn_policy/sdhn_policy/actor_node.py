@@ -7,16 +7,16 @@ Launched as ``actor --ros-args -r __ns:=/sdhn/robot_<i> -p team_ns:=/sdhn -p rob
 Nothing else: an actor never sees another robot's observation or the global state. The decision
 logic lives in :mod:`sdhn_policy.actor_core`; this file never imports torch.
 
-A managed (lifecycle) node, driven through the standard ``lifecycle_msgs`` services
+A lifecycle node; with ``managed:=true`` driven through the standard ``lifecycle_msgs`` services
 (``<robot ns>/actor/change_state``, ``get_state``; docs/lifecycle-and-diagnostics.md):
 configure = load and validate ``weights_file`` (bad weights: the transition fails, the node stays
 unconfigured and alive) and subscribe to the weights topic; activate = open the step topics and
 act; deactivate = close them (the simulator counts this robot's steps as missed); cleanup = drop
 the weights; shutdown = stop the process (exit 0). With ``managed:=false`` (the default) it
-configures and activates itself at start, as a plain node would, and bad weights end it with exit
-2. The obs subscription and the action publisher exist only while the node is active *and* holds
-weights, so the simulator, which waits for both before step 0, never starts a step this actor
-cannot answer.
+configures and activates itself at start, as a plain node would, offers no lifecycle services,
+and bad weights end it with exit 2. The obs subscription and the action publisher exist only while
+the node is active *and* holds weights, so the simulator, which waits for both before step 0,
+never starts a step this actor cannot answer.
 
 Beside ours, two standard streams: ``robot_<i>/target_pose`` (``geometry_msgs/PoseStamped``, the
 cell the chosen action moves to, frame ``map``; needs ``env`` to read the cell from the
@@ -115,7 +115,9 @@ class ActorNode(LifecycleNode):
                 self._loaded = self.load_core()
             except WeightsError as e:
                 raise ConfigError(self.weights_error(e)) from e
-        LifecycleNodeMixin.__init__(self)
+        # Unmanaged, nothing drives it: no lifecycle services or transition_event topic (a dozen
+        # DDS endpoints per actor that every participant of the graph would discover).
+        LifecycleNodeMixin.__init__(self, enable_communication_interface=p["managed"])
         self.phase = "unconfigured"  # the lifecycle state, for logs and diagnostics
         self.configure_error = ""  # why the last configure failed
         self._action = RobotAction(robot_id=robot_id)

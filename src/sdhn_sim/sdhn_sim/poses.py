@@ -21,10 +21,6 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from sdhn_sim.envs.maif import ACTION_DELTAS
-from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
-from sdhn_sim.envs.registry import RWARE_TASKS
-
 FRAME_ID = "map"
 TargetReader = Callable[[npt.NDArray[np.float32], int], tuple[float, float, float]]
 
@@ -47,6 +43,8 @@ def yaw_quaternion(yaw: float) -> tuple[float, float]:
 
 
 def maif_target(size: int) -> TargetReader:
+    from sdhn_sim.envs.maif import ACTION_DELTAS
+
     scale = size - 1
 
     def target(obs: npt.NDArray[np.float32], action: int) -> tuple[float, float, float]:
@@ -74,7 +72,12 @@ def rware_target(obs: npt.NDArray[np.float32], action: int) -> tuple[float, floa
 
 
 def target_reader(env: str) -> TargetReader | None:
-    """The target decoder of environment ``env`` (a registry name); None when unknown."""
+    """The target decoder of environment ``env`` (a registry name); None when unknown. The
+    environments are imported here, not with this module: an actor without ``env`` (or the
+    simulator's poses) does not pay for them at start."""
+    from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+    from sdhn_sim.envs.registry import RWARE_TASKS
+
     if env in MAIF_CONFIGS:
         return maif_target(MAIF_CONFIGS[env].size)
     if env in RWARE_TASKS:

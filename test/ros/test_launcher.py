@@ -139,6 +139,15 @@ def test_bad_config_exits_2_naming_the_field(tmp_path: Path) -> None:
     assert "mode:" in launcher.output and "allowed: deploy, train" in launcher.output
 
 
+def test_managed_is_refused_across_hosts() -> None:
+    with pytest.raises(LaunchConfigError, match=r"^managed: .*allowed: false when hosts"):
+        load_config(None, ["mode=train", "managed=true", "hosts.sim=somewhere"])
+    managed = graph(resolve(load_config(None, ["mode=train", "managed=true"])))
+    assert [c.name for c in managed if c.managed] == [f"actor_{i}" for i in range(4)]
+    assert all("managed:=true" in c.ros_args for c in managed if c.managed)
+    assert managed[-1].node_name == "/sdhn/robot_3/actor"
+
+
 def test_validate_checks_without_changing_and_resolve_fills_in(weights: Path) -> None:
     cfg = LaunchConfig(env="maif-tiny", weights=str(weights.parent))
     before = dataclasses.asdict(cfg)

@@ -176,6 +176,10 @@ def validate(cfg: LaunchConfig) -> None:
         topics.check_team_ns(cfg.team_ns)
     except topics.NamespaceError as e:
         raise LaunchConfigError(str(e)) from None
+    if cfg.managed and cfg.hosts:
+        raise LaunchConfigError("managed: the launcher drives lifecycle services from its own "
+                                "network namespace, not across hosts; allowed: false when hosts "
+                                "is set")
     names = [c.name for c in graph(dataclasses.replace(cfg, robots=n, run_dir=".", hosts={}))]
     for child, netns in cfg.hosts.items():
         if child not in names:

@@ -135,3 +135,13 @@ def test_diagnostics_poses_and_target_poses(weights: Path, tmp_path: Path) -> No
         assert (t.pose.position.x, t.pose.position.y) == cell_center(x + dx, y + dy), (a, s)
         checked += 1
     assert checked >= 10, (checked, len(targets), len(actions))
+
+    # The recorder took the team's topics but not the derived viewer streams (docs page).
+    from mcap.reader import make_reader
+
+    with (tmp_path / "run.mcap").open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    recorded = {c.topic for c in summary.channels.values()}
+    assert topics.absolute(NS, topics.STATE) in recorded, recorded
+    assert not {t for t in recorded if t.endswith(("/poses", "/target_pose"))}, recorded

@@ -18,6 +18,7 @@ import pytest
 from sdhn_bringup.supervisor import LaunchConfigError, load_config
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.lockstep import SimConfig, SimConfigError
+from sdhn_sim.poses import target_reader
 from sdhn_sim.ros.runner import ConfigError as NodeConfigError
 from sdhn_sim.sim_node import PARAMETERS, sim_config
 from sdhn_sim.viz.viz_node import _check_params as viz_check_params
@@ -117,10 +118,16 @@ def viz_node_env(name: str) -> bool:
     return _raises(lambda: viz_check_params("/sdhn", name, "127.0.0.1"), NodeConfigError)
 
 
+def actor_target_env(name: str) -> bool:
+    """The actor's ``env`` parameter (for its target pose): the node refuses a name without a
+    target reader."""
+    return target_reader(name) is not None
+
+
 ENV_ACCEPTORS: dict[str, Acceptor] = {
     "trainer config": config_env, "train CLI": cli_env, "trainer node": node_env,
     "figures": figures_env, "launcher": launcher_env, "sim core": sim_core_env,
-    "sim node": sim_node_env, "viz node": viz_node_env,
+    "sim node": sim_node_env, "viz node": viz_node_env, "actor target pose": actor_target_env,
 }
 ALGO_ACCEPTORS: dict[str, Acceptor] = {
     "trainer config": config_algo, "train CLI": cli_algo, "trainer node": node_algo,

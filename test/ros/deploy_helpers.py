@@ -97,19 +97,22 @@ class Seen:
     episodes: list[Any] = field(default_factory=list)
     obs_count: int = 0
     state_count: int = 0
+    diagnostics: dict[str, list[Any]] = field(default_factory=dict)  # node name -> statuses
 
 
 @contextmanager
 def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, Any]]:
     """An rclpy node in the test process that subscribes to every obs, action, state and episode
-    topic (the simulator counts it with ``extra_subscribers=1``). Yields (node, seen, spin)."""
+    topic (the simulator counts it with ``extra_subscribers=1``) and to /diagnostics. Yields
+    (node, seen, spin)."""
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
     from rclpy.qos import QoSProfile
 
     from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
-    from sdhn_sim.ros.qos import STEP
+    from sdhn_sim.ros.qos import DIAGNOSTICS, STEP
 
     # The test process is a starved observer on a loaded machine: a reader history as deep as a
     # whole test run, so samples it is slow to take are never overwritten in its own cache
@@ -144,6 +147,13 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
                                          qos))
     subs.append(node.create_subscription(EpisodeSummary, topics.absolute(ns, topics.EPISODE),
                                          seen.episodes.append, qos))
+
+    def on_diagnostics(m: Any) -> None:
+        for status in m.status:
+            seen.diagnostics.setdefault(status.name, []).append(status)
+
+    subs.append(node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics,
+                                         DIAGNOSTICS))
 
     def spin(seconds: float, until: Any = None) -> bool:
         end = time.monotonic() + seconds

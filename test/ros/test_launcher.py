@@ -109,11 +109,43 @@ def test_killed_child_is_reported_and_sigterm_stops_all(weights: Path, tmp_path:
         assert "failed: actor_2" in out
 
 
+def test_managed_actors_are_driven_to_active_again_after_a_restart(weights: Path,
+                                                                   tmp_path: Path) -> None:
+    """managed: true: the launcher drives each actor configure -> activate through the
+    lifecycle_msgs services; a killed actor is restarted unconfigured and driven again, and acts
+    (a later episode has no missed actions)."""
+    ns = "/sdhn_launch_managed"
+    with node_processes(launch(weights, tmp_path, "episodes=0", "step_deadline=0.2",
+                               f"team_ns={ns}", "managed=true",
+                               "restart.policy=on-failure")) as (launcher,):
+        assert launcher.wait_for_line("episode 0:", timeout=60), launcher.output
+        for i in range(4):
+            assert f"actor_{i}: {ns}/robot_{i}/actor active" in launcher.output, launcher.output
+        os.kill(pid_of(launcher, "actor_2"), signal.SIGKILL)
+        assert launcher.wait_for_line("restarted actor_2 (1/3)", timeout=20), launcher.output
+        assert wait_after(launcher, "restarted actor_2", f"actor_2: {ns}/robot_2/actor active",
+                          timeout=30), launcher.output
+        assert wait_after(launcher, f"actor_2: {ns}/robot_2/actor active", "missed 0,",
+                          timeout=40), launcher.output
+        code = launcher.stop(signal.SIGTERM, timeout=20)
+    assert code == 0, launcher.output
+    assert "every child stopped cleanly" in launcher.output
+
+
 def test_bad_config_exits_2_naming_the_field(tmp_path: Path) -> None:
     with node_processes([*LAUNCH, "--set", "mode=fly"]) as (launcher,):
         launcher.proc.wait(timeout=30)
     assert launcher.proc.returncode == 2
     assert "mode:" in launcher.output and "allowed: deploy, train" in launcher.output
+
+
+def test_managed_is_refused_across_hosts() -> None:
+    with pytest.raises(LaunchConfigError, match=r"^managed: .*allowed: false when hosts"):
+        load_config(None, ["mode=train", "managed=true", "hosts.sim=somewhere"])
+    managed = graph(resolve(load_config(None, ["mode=train", "managed=true"])))
+    assert [c.name for c in managed if c.managed] == [f"actor_{i}" for i in range(4)]
+    assert all("managed:=true" in c.ros_args for c in managed if c.managed)
+    assert managed[-1].node_name == "/sdhn/robot_3/actor"
 
 
 def test_validate_checks_without_changing_and_resolve_fills_in(weights: Path) -> None:

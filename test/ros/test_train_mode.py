@@ -93,6 +93,25 @@ def test_trainer_publishes_new_versions_and_actors_switch(train_run: TrainRun) -
     assert "Traceback" not in out
 
 
+def test_trainer_and_recorder_report_on_diagnostics(train_run: TrainRun) -> None:
+    """The trainer's and the recorder's /diagnostics (docs/lifecycle-and-diagnostics.md): queue
+    depth, drops by cause and the weights version; write queue and messages written."""
+    reports = train_run.seen.diagnostics
+    want = {"/trainer": {"weights_version", "queue_depth", "transitions", "dropped_in_window"},
+            "/recorder": {"write_queue_depth", "not_written", "messages_written",
+                          "dropped_in_window"}}
+    for name, keys in want.items():
+        assert name in reports, sorted(reports)
+        last = {kv.key: kv.value for kv in reports[name][-1].values}
+        assert keys <= set(last), (name, keys - set(last))
+    versions = [int({kv.key: kv.value for kv in s.values}["weights_version"])
+                for s in reports["/trainer"]]
+    # the versions it reports are the ones it publishes: rising, as the actors used them
+    used = {v for _a, v in train_run.seen.actions.values()}
+    assert versions == sorted(versions) and versions[0] >= 1 and versions[-1] <= max(used), (
+        versions, sorted(used))
+
+
 def test_resume_continues_from_the_last_version(train_run: TrainRun, tmp_path: Path) -> None:
     out = train_run.trainer.output
     last = max(int(m) for m in re.findall(r"update: version=(\d+)", out))

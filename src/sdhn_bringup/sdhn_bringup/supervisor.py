@@ -25,6 +25,10 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
     step_deadline: 1.0    max_steps: 0                         instance: -1
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
     restart: {policy: never | on-failure, max_restarts: 3}
+    managed: false        (true: actors start as unconfigured lifecycle nodes and the launcher
+                          drives each one configure -> activate through the standard
+                          lifecycle_msgs services, again after a restart; a refused configure,
+                          e.g. bad weights, fails the run like an actor's exit 2 does)
     trainer: {algo: sdhn, rollout_steps: 128, ...}   (mode train; passed through as the
                           trainer node's parameters, which the trainer itself checks: a bad one
                           ends the trainer with exit 2 and one line naming it in its log)
@@ -104,6 +108,7 @@ class LaunchConfig:
     stop_timeout: float = 10.0  # seconds from SIGINT to SIGKILL when stopping a child
     status_interval: float = 1.0  # seconds between status lines
     restart: RestartConfig = field(default_factory=RestartConfig)
+    managed: bool = False  # actors wait for lifecycle transitions, driven by the launcher
     trainer: TrainerSection = field(default_factory=dict)
     hosts: dict[str, str] = field(default_factory=dict)  # child name -> network namespace
 
@@ -187,6 +192,10 @@ def validate(cfg: LaunchConfig) -> None:
         topics.check_team_ns(cfg.team_ns)
     except topics.NamespaceError as e:
         raise LaunchConfigError(str(e)) from None
+    if cfg.managed and cfg.hosts:
+        raise LaunchConfigError("managed: the launcher drives lifecycle services from its own "
+                                "network namespace, not across hosts; allowed: false when hosts "
+                                "is set")
     names = [c.name for c in graph(dataclasses.replace(cfg, robots=n, run_dir=".", hosts={}))]
     for child, netns in cfg.hosts.items():
         if child not in names:
@@ -287,6 +296,14 @@ class ChildSpec:
     essential: bool = False  # the graph ends when this child ends (the simulator)
     restart_args: list[str] = field(default_factory=list)  # appended when it is restarted
     netns: str = ""  # run inside this network namespace ("" = the launcher's own)
+    managed: bool = False  # a lifecycle node the launcher drives to active
+
+    @property
+    def node_name(self) -> str:
+        """The fully qualified ROS name of its node (its namespace from ``-r __ns:=``)."""
+        ns = next((a.removeprefix("__ns:=") for a in self.ros_args if a.startswith("__ns:=")),
+                  "")
+        return f"{ns}/{self.executable}"
 
     def command(self, restart: bool = False) -> list[str]:
         """The package's console script next to this interpreter (what ``ros2 run`` runs from
@@ -340,7 +357,8 @@ def graph(cfg: LaunchConfig) -> list[ChildSpec]:
             "-r", f"__ns:={topics.absolute(ns, topics.robot(i))}", *common,
             *_param("robot_id", i), *_param("num_robots", cfg.robots),
             *_param("weights_file", weights), *_param("greedy", greedy),
-            *_param("seed", cfg.seed)]))
+            *_param("seed", cfg.seed), *_param("env", cfg.env),
+            *_param("managed", cfg.managed)], managed=cfg.managed))
     for child in children:
         child.netns = cfg.hosts.get(child.name, "")
     return children
@@ -352,6 +370,10 @@ def status_dir(run_dir: Path) -> Path:
 
 
 SIM_EVENTS = "sim-events.jsonl"
+# Managed children: the transition each lifecycle state needs on the way to active, and how long
+# a lifecycle request may stay unanswered before it is asked again (from the state).
+NEXT_TRANSITION = {"unconfigured": "configure", "inactive": "activate"}
+LIFECYCLE_RETRY_S = 5.0
 # What a launch writes into its run_dir: a directory holding any of them is another run's and is
 # refused (its logs, events and CSV would be read and appended to as this run's). Other files
 # (a wrapper's own log, like scripts/soak.py's) do not make it one.
@@ -377,8 +399,13 @@ class Child:
         self.proc: subprocess.Popen[bytes] | None = None
         self.log: IO[bytes] | None = None
         self.exit_code: int | None = None
+        # managed: the transition asked for and its reply; "" until asked, "active" once there
+        self.lifecycle = ""
+        self.lifecycle_reply: Any = None
+        self.lifecycle_asked = 0.0  # monotonic time of the pending request
 
     def start(self) -> None:
+        self.lifecycle, self.lifecycle_reply = "", None  # a restarted node starts unconfigured
         self.ready_path.unlink(missing_ok=True)  # written again by this start's node runner
         self.log = open(self.log_path, "ab")  # noqa: SIM115 - lives as long as the child
         self.proc = subprocess.Popen(self.spec.command(restart=self.restarts > 0), stdout=self.log,
@@ -464,6 +491,12 @@ class Launcher:
         self.t_steps0: float | None = None
         self.position = (0, 0)
         self._tty = out.isatty()
+        self.lifecycle: Any = None  # sdhn_sim.ros.lifecycle_client.LifecycleClient when managed
+        if any(c.spec.managed for c in self.children):
+            os.environ.setdefault("ROS_LOG_DIR", env["ROS_LOG_DIR"])
+            from sdhn_sim.ros.lifecycle_client import LifecycleClient  # rclpy only when needed
+
+            self.lifecycle = LifecycleClient("launcher")
 
     def say(self, text: str) -> None:
         if self._tty:
@@ -540,9 +573,13 @@ class Launcher:
         finished = False
         all_ready_said = False
         while not self.stop_requested and not finished:
-            time.sleep(0.1)
+            if self.lifecycle is not None:
+                self.lifecycle.spin(0.1)
+                finished = self.drive_managed()
+            else:
+                time.sleep(0.1)
             self.read_events()
-            finished = self.check_children()
+            finished = self.check_children() or finished
             if not all_ready_said and all(c.ready for c in self.children):
                 # once, at the moment it happens: a short run may end before the next line
                 all_ready_said = True
@@ -586,6 +623,46 @@ class Launcher:
                 return True
         return False
 
+    def drive_managed(self) -> bool:
+        """Step every managed child towards active through its lifecycle services: ask its state,
+        then the transition that state needs (unconfigured: configure, inactive: activate), and
+        again, until it is active. A request unanswered for LIFECYCLE_RETRY_S is asked again from
+        the state (a restarted child's services may not be matched yet, while the dead one's
+        still look ready). True when a child refused a transition (the run cannot start:
+        reported like an actor's exit 2)."""
+        for child in self.children:
+            if not child.spec.managed or child.lifecycle == "active" or not child.ready:
+                continue
+            node = child.spec.node_name
+            reply = child.lifecycle_reply
+            if reply is None or (not reply.done()
+                                 and time.monotonic() - child.lifecycle_asked > LIFECYCLE_RETRY_S):
+                if self.lifecycle.ready(node):
+                    child.lifecycle, child.lifecycle_asked = "get_state", time.monotonic()
+                    child.lifecycle_reply = self.lifecycle.request_state(node)
+                continue
+            if not reply.done():
+                continue
+            result = reply.result()
+            if child.lifecycle != "get_state":
+                if not result.success:
+                    self.say(f"{child.spec.name}: lifecycle {child.lifecycle} of {node} refused; "
+                             f"log {child.log_path}")
+                    self.failed.append(child.spec.name)
+                    return True
+                child.lifecycle_reply = None  # ask the state again
+                continue
+            state = result.current_state.label
+            if state == "active":
+                child.lifecycle, child.lifecycle_reply = "active", None
+                self.say(f"{child.spec.name}: {node} active")
+            elif state in NEXT_TRANSITION:
+                child.lifecycle, child.lifecycle_asked = NEXT_TRANSITION[state], time.monotonic()
+                child.lifecycle_reply = self.lifecycle.request(node, child.lifecycle)
+            else:
+                child.lifecycle_reply = None  # transitioning: ask again
+        return False
+
     def stop_all(self) -> int:
         # Observers (recorder) stop last so they see everything the others published.
         order = sorted(self.children, key=lambda c: c.spec.name == "recorder")
@@ -605,6 +682,9 @@ class Launcher:
                     child.proc.wait()
                 child.poll()
         self.read_events()
+        if self.lifecycle is not None:
+            self.lifecycle.close()
+            self.lifecycle = None
         codes = {c.spec.name: c.exit_code for c in self.children}
         bad = sorted(set(self.failed) | {n for n, c in codes.items() if c != 0})
         summary = ", ".join(f"{n}={describe_exit(c)}" for n, c in codes.items())

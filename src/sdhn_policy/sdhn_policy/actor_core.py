@@ -92,6 +92,14 @@ class ActorCore:
         """Version of the weights in use (0 = none yet)."""
         return self.runtime.version if self.runtime is not None else 0
 
+    def forget_position(self) -> None:
+        """After a pause (a deactivated actor): forget the last answered step, so the next
+        observation is taken whatever step it is (as by a restarted actor), with a fresh GRU
+        state; the steps in between were not this actor's."""
+        self.episode = self.last_step = None
+        if self.runtime is not None:
+            self.hidden = self.runtime.initial_state(1)
+
     def _check(self, rt: ActorRuntime) -> None:
         spec = rt.spec
         if spec.use_robot_id and spec.num_robots != self.num_robots:

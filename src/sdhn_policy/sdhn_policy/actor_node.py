@@ -4,20 +4,42 @@ Launched as ``actor --ros-args -r __ns:=/sdhn/robot_<i> -p team_ns:=/sdhn -p rob
 -p num_robots:=<N>``. Subscribes to its own ``robot_<i>/obs`` and to the team's ``policy/weights``
 (latched), publishes ``robot_<i>/action``, all under ``team_ns`` (names from
 :mod:`sdhn_sim.ros.topics`; absolute, because the weights topic is the team's, not the robot's).
-Nothing else: an actor never sees another robot's observation or the global state. The obs
-subscription and the action publisher are created only once the actor holds weights (from
-``weights_file`` at start, or the first valid weights message), so the simulator, which waits for
-both before step 0, never starts a step this actor cannot answer. The decision logic lives in
-:mod:`sdhn_policy.actor_core`; this file never imports torch.
+Nothing else: an actor never sees another robot's observation or the global state. The decision
+logic lives in :mod:`sdhn_policy.actor_core`; this file never imports torch.
+
+A lifecycle node; with ``managed:=true`` driven through the standard ``lifecycle_msgs`` services
+(``<robot ns>/actor/change_state``, ``get_state``; docs/lifecycle-and-diagnostics.md):
+configure = load and validate ``weights_file`` (bad weights: the transition fails, the node stays
+unconfigured and alive) and subscribe to the weights topic; activate = open the step topics and
+act; deactivate = close them (the simulator counts this robot's steps as missed); cleanup = drop
+the weights; shutdown = stop the process (exit 0). With ``managed:=false`` (the default) it
+configures and activates itself at start, as a plain node would, offers no lifecycle services,
+and bad weights end it with exit 2. The obs subscription and the action publisher exist only while
+the node is active *and* holds weights, so the simulator, which waits for both before step 0,
+never starts a step this actor cannot answer.
+
+Beside ours, two standard streams: ``robot_<i>/target_pose`` (``geometry_msgs/PoseStamped``, the
+cell the chosen action moves to, frame ``map``; needs ``env`` to read the cell from the
+observation; published only while someone subscribes) and ``/diagnostics`` (decision latency
+p50/p99, weights version, drops per cause, 1 Hz).
 """
 
 from __future__ import annotations
 
+import signal
 import time
 from collections import Counter
 from collections.abc import Sequence
+from typing import Any
 
+from geometry_msgs.msg import PoseStamped
 from rclpy.context import Context
+from rclpy.lifecycle import (
+    LifecycleNode,
+    LifecycleNodeMixin,
+    LifecycleState,
+    TransitionCallbackReturn,
+)
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
@@ -25,10 +47,22 @@ from rclpy.subscription import Subscription
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
 from sdhn_policy.weights import WeightsError
+from sdhn_sim.diagnostics import (
+    OK,
+    WARN,
+    Report,
+    RollingPercentiles,
+    WindowCounts,
+    drop_values,
+    make_report,
+)
 from sdhn_sim.drops import DropKind
+from sdhn_sim.envs.registry import env_names
+from sdhn_sim.poses import FRAME_ID, target_reader, yaw_quaternion
 from sdhn_sim.ros import cdr, topics
+from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
 from sdhn_sim.ros.params import boolean, declare, integer, string
-from sdhn_sim.ros.qos import LATCHED, STEP
+from sdhn_sim.ros.qos import LATCHED, POSES, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
 
 PARAMETERS = {
@@ -41,58 +75,173 @@ PARAMETERS = {
     "greedy": (False, boolean("argmax actions instead of sampling")),
     "seed": (0, integer("seed of the action sampler", 0)),
     "backend": ("numpy", string("policy runtime: 'numpy' or 'onnx' (onnxruntime); same actions")),
+    "managed": (False, boolean("wait for lifecycle transitions (configure, activate) through the "
+                               "lifecycle_msgs services; false = configure and activate at start")),
+    "env": ("", string("environment name, to read this robot's cell from its observation for "
+                       "target_pose; '' = no target_pose")),
 }
 FAIL_AFTER = 3  # wrong-length observations before any answer that end the actor
 WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait for "
                    "the weights topic)")
 
 
-class ActorNode(Node):
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+SHUTDOWN_GRACE_S = 0.2  # after the shutdown transition, time for its service reply to go out
+
+
+class ActorNode(LifecycleNode):
     def __init__(self, context: Context) -> None:
-        super().__init__("actor", context=context)
+        # LifecycleNode's own __init__ in two halves: the lifecycle interface (services, the
+        # transition_event topic) only once the parameters, and without ``managed`` the weights,
+        # are known good, so a configuration error leaves no topic behind (exit 2, one line).
+        Node.__init__(self, "actor", context=context)
         p = declare(self, PARAMETERS)
-        robot_id, num_robots, weights_file = p["robot_id"], p["num_robots"], p["weights_file"]
+        robot_id, num_robots = p["robot_id"], p["num_robots"]
         self.ns = topics.check_team_ns(p["team_ns"])
         if robot_id >= num_robots:
             raise ConfigError(f"robot_id: got {robot_id}; allowed: 0 <= robot_id < num_robots "
                               f"({num_robots})")
+        self.target = target_reader(p["env"]) if p["env"] else None
+        if p["env"] and self.target is None:
+            raise ConfigError(f"env: unknown {p['env']!r}; allowed: '' or one of "
+                              f"{', '.join(env_names())}")
+        self.params: dict[str, Any] = p
         try:
-            runtime_cls = runtime_class(p["backend"])
+            self.runtime_cls = runtime_class(p["backend"])
         except ValueError as e:
             raise ConfigError(str(e)) from None
-        try:
-            runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
-            self.core = ActorCore(robot_id, num_robots, p["greedy"], p["seed"], runtime,
-                                  runtime_cls=runtime_cls)
-        except WeightsError as e:
-            raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {WEIGHTS_ALLOWED}") from e
         self.robot_id = robot_id
+        self.core: ActorCore | None = None  # set by configure
+        self._loaded: ActorCore | None = None  # unmanaged: loaded here, taken by configure
+        if not p["managed"]:
+            try:
+                self._loaded = self.load_core()
+            except WeightsError as e:
+                raise ConfigError(self.weights_error(e)) from e
+        # Unmanaged, nothing drives it: no lifecycle services or transition_event topic (a dozen
+        # DDS endpoints per actor that every participant of the graph would discover).
+        LifecycleNodeMixin.__init__(self, enable_communication_interface=p["managed"])
+        self.phase = "unconfigured"  # the lifecycle state, for logs and diagnostics
+        self.configure_error = ""  # why the last configure failed
         self._action = RobotAction(robot_id=robot_id)
+        self._target = PoseStamped()
+        self._target.header.frame_id = FRAME_ID
         self.drops: Counter[str] = Counter()
         self.failed_reason = ""  # set when this actor can never act (sdhn_sim.ros.runner)
         self.answered = False  # any observation answered yet
         self.unfit = 0  # observations of the wrong length before the first answer
+        self.weights_sub: Subscription | None = None
         self.obs_sub: Subscription | None = None
         self.action_pub: Publisher | None = None
+        self.target_pub: Publisher | None = None
+        self.latency_ms = RollingPercentiles(1000)  # obs received -> action sent
+        self._drops_window = WindowCounts()
+        self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
+        how = "managed: waiting for configure" if p["managed"] else "configuring itself"
+        self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
+                               f"backend={p['backend']}, {how}")
+
+    # -- lifecycle transitions (lifecycle_msgs/srv/ChangeState, or autostart) -----------------
+
+    def load_core(self) -> ActorCore:
+        """The policy state machine with ``weights_file`` loaded (WeightsError if it is bad)."""
+        p, weights_file = self.params, self.params["weights_file"]
+        runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
+        return ActorCore(self.robot_id, p["num_robots"], p["greedy"], p["seed"], runtime,
+                         runtime_cls=self.runtime_cls)
+
+    def weights_error(self, e: WeightsError) -> str:
+        return f"weights_file: {self.params['weights_file']}: {e.reason}; {WEIGHTS_ALLOWED}"
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        weights_file = self.params["weights_file"]
+        try:
+            self.core = self._loaded if self._loaded is not None else self.load_core()
+            self._loaded = None
+        except WeightsError as e:
+            self.configure_error = self.weights_error(e)
+            self.get_logger().error(f"configure failed: {self.configure_error}")
+            return FAILURE
         weights_topic = topics.absolute(self.ns, topics.WEIGHTS)
         self.weights_sub = self.create_subscription(
             PolicyWeights, weights_topic, self.on_weights, LATCHED)
-        if runtime is not None:
-            self.open_step_topics()
+        self.phase, self.configure_error = "inactive", ""
         source = weights_file or f"waiting for {weights_topic}"
-        self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
-                               f"backend={p['backend']}, "
-                               f"weights: {source} (version {self.core.version})")
+        self.get_logger().info(f"configured: weights {source} (version {self.core.version})")
+        return SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        assert self.core is not None
+        self.core.forget_position()
+        self.phase = "active"
+        if self.core.runtime is not None:
+            self.open_step_topics()
+        self.get_logger().info(f"activated (weights version {self.core.version})")
+        return SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.close_step_topics()
+        self.phase = "inactive"
+        self.get_logger().info("deactivated: not acting (the simulator counts this robot's "
+                               "steps as missed)")
+        return SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.release()
+        self.get_logger().info("cleaned up: weights dropped")
+        return SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.release()
+        self.phase = "finalized"
+        self.get_logger().info("shutdown: stopping")
+        self.create_timer(SHUTDOWN_GRACE_S, self.stop_process)
+        return SUCCESS
+
+    def stop_process(self) -> None:
+        """run_node's own stop path (its SIGTERM flag), once the reply to the shutdown transition
+        has gone out: on_stop runs, the node is destroyed, exit code 0."""
+        signal.raise_signal(signal.SIGTERM)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.release()
+        self.get_logger().error(f"error in a transition from {state.label}: back to unconfigured")
+        return SUCCESS
+
+    def release(self) -> None:
+        """Back to unconfigured: no step topics, no weights subscription, no weights."""
+        self.close_step_topics()
+        if self.weights_sub is not None:
+            self.destroy_subscription(self.weights_sub)
+            self.weights_sub = None
+        self.core = None
+        self.phase = "unconfigured"
 
     def open_step_topics(self) -> None:
-        """Create the obs subscription and the action publisher (once we can answer)."""
+        """Create the obs subscription and the action publisher (active, and able to answer)."""
         self.action_pub = self.create_publisher(
             RobotAction, topics.absolute(self.ns, topics.robot_action(self.robot_id)), STEP)
+        if self.target is not None:
+            self.target_pub = self.create_publisher(
+                PoseStamped, topics.absolute(self.ns, topics.robot_target_pose(self.robot_id)),
+                POSES)
         self.obs_sub = self.create_subscription(
             RobotObservation, topics.absolute(self.ns, topics.robot_obs(self.robot_id)),
             self.on_obs, STEP, raw=True)
 
+    def close_step_topics(self) -> None:
+        if self.obs_sub is not None:
+            self.destroy_subscription(self.obs_sub)
+        for pub in (self.action_pub, self.target_pub):
+            if pub is not None:
+                self.destroy_publisher(pub)
+        self.obs_sub = self.action_pub = self.target_pub = None
+
+    # -- callbacks -----------------------------------------------------------------------------
+
     def on_weights(self, msg: PolicyWeights) -> None:
+        if self.core is None:
+            return
         try:
             new = self.core.offer_weights(msg.format, int(msg.version), bytes(msg.payload),
                                           msg.sha256)
@@ -103,10 +252,15 @@ class ActorNode(Node):
         if not new:
             return
         self.get_logger().info(f"weights version {msg.version} accepted (used from the next step)")
-        if self.obs_sub is None:
+        if self.obs_sub is None and self.phase == "active":
             self.open_step_topics()
 
     def on_obs(self, data: bytes) -> None:
+        t0 = time.perf_counter()
+        if self.core is None or self.action_pub is None:
+            # Not active: an observation the executor had queued before deactivate closed the
+            # subscription still arrives here once; the simulator counts the step as missed.
+            return
         # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per step.
         try:
             msg = cdr.read_observation(data)
@@ -117,7 +271,6 @@ class ActorNode(Node):
                                done=msg.terminated or msg.truncated)
         if isinstance(out, Decision):
             self.answered = True
-            assert self.action_pub is not None
             # One message, refilled per step (rclpy serialises at publish): no per-step message,
             # Header and Time objects. The stamp is the wall clock the node's ROS clock reads
             # (no simulated time in this graph), without building rclpy Time objects.
@@ -126,6 +279,9 @@ class ActorNode(Node):
             a.episode, a.step = msg.episode, msg.step
             a.action, a.log_prob, a.policy_version = out.action, out.log_prob, out.version
             self.action_pub.publish(a)
+            self.latency_ms.add((time.perf_counter() - t0) * 1e3)
+            if self.target_pub is not None and self.target_pub.get_subscription_count():
+                self.publish_target(msg.obs, out.action, a.header.stamp)
         elif isinstance(out, Drop):
             self.drop(out.kind, f"episode {msg.episode} step {msg.step}: {out.reason}")
             # Weights that do not fit the environment: the simulator re-sends step 0, every
@@ -138,6 +294,35 @@ class ActorNode(Node):
                                           f"{self.unfit} times before any answer (weights do "
                                           "not fit the environment)")
 
+    def publish_target(self, obs: Any, action: int, stamp: Any) -> None:
+        """The cell ``action`` moves to, as a map-frame pose facing the move (after the action,
+        off the decision's latency)."""
+        assert self.target is not None and self.target_pub is not None
+        x, y, yaw = self.target(obs, action)
+        t = self._target
+        t.header.stamp = stamp
+        t.pose.position.x, t.pose.position.y = x, y
+        t.pose.orientation.z, t.pose.orientation.w = yaw_quaternion(yaw)
+        self.target_pub.publish(t)
+
+    def diagnostics_report(self) -> Report:
+        lat = self.latency_ms
+        values: dict[str, float | int | str] = {
+            "lifecycle_state": self.phase,
+            "weights_version": self.core.version if self.core is not None else 0,
+            "decisions": lat.count,
+            "decision_latency_p50_ms": lat.percentile(50),
+            "decision_latency_p99_ms": lat.percentile(99),
+        }
+        values |= drop_values(self.drops, self._drops_window.new(self.drops))
+        waiting = self.phase == "active" and self.obs_sub is None
+        note = ("active, waiting for weights" if waiting else "" if self.phase == "active"
+                else f"{self.phase}: not acting" + (f" ({self.configure_error})"
+                                                    if self.configure_error else ""))
+        return make_report(self.get_fully_qualified_name(), self.ns, values,
+                           ("decision_latency_p99_ms", "dropped_in_window"), note,
+                           floor=WARN if waiting else OK)
+
     def drop(self, kind: str, detail: str) -> None:
         self.drops[kind] += 1
         if self.drops[kind] == 1:
@@ -149,5 +334,16 @@ def _on_stop(node: Node) -> None:
         node.get_logger().info(f"drops: {dict(node.drops)}")
 
 
+def make_actor(context: Context, _args: list[str]) -> ActorNode:
+    """The node; unless ``managed``, configured and activated at once (bad weights: ConfigError
+    while it is built, exit 2)."""
+    node = ActorNode(context)
+    # unmanaged: the weights were checked when the node was built
+    if not node.params["managed"] and (node.trigger_configure() != SUCCESS
+                                       or node.trigger_activate() != SUCCESS):
+        raise ConfigError(node.configure_error or "weights_file: configure failed")
+    return node
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    return run_node(lambda context, _args: ActorNode(context), argv, _on_stop)
+    return run_node(make_actor, argv, _on_stop)

@@ -3,7 +3,9 @@
 ``ros2 run <package> <executable> [args ...] [--ros-args ...]`` looks the executable up among the
 package's console scripts and runs it in this process with the remaining arguments, exactly as
 ``ros2 run`` would run ``lib/<package>/<executable>``. ``ros2 pkg executables [<package>]`` lists
-them. Only these two verbs exist; anything else fails with the list of verbs.
+them. ``ros2 lifecycle get <node>`` and ``ros2 lifecycle set <node> <transition>`` drive a managed
+node through the standard ``lifecycle_msgs`` services, as ros2cli's verbs do
+(:mod:`sdhn_sim.ros.lifecycle_client`). Only these verbs exist; anything else fails with the list.
 """
 
 from __future__ import annotations
@@ -12,7 +14,9 @@ import sys
 from importlib import metadata
 
 PACKAGES = ("sdhn_sim", "sdhn_policy", "sdhn_train")
-USAGE = "usage: ros2 run <package> <executable> [args ...] | ros2 pkg executables [<package>]"
+USAGE = ("usage: ros2 run <package> <executable> [args ...] | ros2 pkg executables [<package>] | "
+         "ros2 lifecycle get <node> | ros2 lifecycle set <node> <transition>")
+LIFECYCLE_TIMEOUT_S = 10.0
 
 
 def executables(package: str) -> dict[str, metadata.EntryPoint]:
@@ -31,6 +35,8 @@ def main(argv: list[str] | None = None) -> int:
             for name in sorted(executables(package)):
                 print(f"{package} {name}")
         return 0
+    if args[:1] == ["lifecycle"]:
+        return lifecycle(args[1:])
     if len(args) < 3 or args[0] != "run":
         print(USAGE, file=sys.stderr)
         return 2
@@ -51,6 +57,43 @@ def main(argv: list[str] | None = None) -> int:
     sys.argv = [executable, *rest]
     result = found[executable].load()()
     return int(result or 0)
+
+
+def lifecycle(args: list[str]) -> int:
+    """``get <node>``: print its state; ``set <node> <transition>``: exit 0 when it succeeded,
+    1 when the node refused it, 2 for bad arguments or no answer within LIFECYCLE_TIMEOUT_S."""
+    from sdhn_sim.ros.lifecycle_client import (
+        TRANSITIONS,
+        LifecycleClient,
+        change_state,
+        get_state,
+    )
+
+    verb = args[0] if args else ""
+    if not ((verb == "get" and len(args) == 2) or (verb == "set" and len(args) == 3)):
+        print(USAGE, file=sys.stderr)
+        return 2
+    node = args[1] if args[1].startswith("/") else "/" + args[1]
+    if verb == "set" and args[2] not in TRANSITIONS:
+        print(f"ros2: transition: {args[2]!r}; allowed: {', '.join(TRANSITIONS)}", file=sys.stderr)
+        return 2
+    client = LifecycleClient()
+    try:
+        if verb == "get":
+            state = get_state(client, node, LIFECYCLE_TIMEOUT_S)
+            if state is not None:
+                print(state)
+                return 0
+        else:
+            ok = change_state(client, node, args[2], LIFECYCLE_TIMEOUT_S)
+            if ok is not None:
+                print("Transitioning successful" if ok else "Transitioning failed")
+                return 0 if ok else 1
+        print(f"ros2: {node}: no lifecycle service answered within {LIFECYCLE_TIMEOUT_S}s",
+              file=sys.stderr)
+        return 2
+    finally:
+        client.close()
 
 
 if __name__ == "__main__":

@@ -10,7 +10,12 @@ stay, counted, logged), step, publish step t+1. The lock-step logic lives in
 stops by itself with exit code 0; it exits 1 when the actors are not all matched within
 ``start_timeout``. With ``events_file`` set it also appends its events (started, progress, each
 episode's result, done, and its totals when it stops) to that file as JSON lines for a supervisor
-(:mod:`sdhn_sim.ros.status`)."""
+(:mod:`sdhn_sim.ros.status`).
+
+Beside ours, two standard streams (docs/lifecycle-and-diagnostics.md): ``poses``
+(``geometry_msgs/PoseArray``, every robot's cell centre in frame ``map``, 1 cell = 1 m, robot i
+at index i; each step, only while someone subscribes) and ``/diagnostics`` (step rate, missed
+actions, drops per cause, 1 Hz)."""
 
 from __future__ import annotations
 
@@ -24,6 +29,7 @@ from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Pose, PoseArray
 from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -31,13 +37,16 @@ from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 
 from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
+from sdhn_sim.diagnostics import Report, WindowCounts, drop_values, make_report
 from sdhn_sim.drops import DropKind
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.lockstep import Frame, LockstepSim, SimConfig, SimConfigError
+from sdhn_sim.poses import FRAME_ID, cell_center
 from sdhn_sim.ros import cdr, topics
+from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
 from sdhn_sim.ros.params import declare, floating, integer, string
-from sdhn_sim.ros.qos import STEP
+from sdhn_sim.ros.qos import POSES, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.ros.status import EventWriter
 
@@ -93,6 +102,9 @@ class SimNode(Node):
             m.header.frame_id = "map"
         self._state_msg = TeamState(env_name=cfg.env, num_robots=n)
         self._state_msg.header.frame_id = "map"
+        self.poses_pub = self.create_publisher(PoseArray, topics.POSES, POSES)
+        self._poses_msg = PoseArray(poses=[Pose() for _ in range(n)])
+        self._poses_msg.header.frame_id = FRAME_ID
         self.drops: Counter[str] = Counter()
         self.started = False
         # Until every robot has answered the first step, a missed deadline re-sends that step to
@@ -107,6 +119,9 @@ class SimNode(Node):
         self._missed_logged_episode = -1
         period = min(0.01, cfg.step_deadline / 4)
         self.tick: Timer = self.create_timer(period, self.on_tick)
+        self._window = (time.monotonic(), 0, 0)  # (time, steps_total, missed) at the last report
+        self._drops_window = WindowCounts()
+        self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
         self.get_logger().info(
             f"ready: env={cfg.env} robots={n} obs_size={self.sim.obs_size} seed={cfg.seed} "
             f"episodes={cfg.episodes} step_deadline={cfg.step_deadline}s "
@@ -221,6 +236,8 @@ class SimNode(Node):
         # filling, serialising and handing one message of N+1 to DDS every step.
         if self.state_pub.get_subscription_count():
             self.publish_state(f, stamp)
+        if self.poses_pub.get_subscription_count():  # the same reasoning
+            self.publish_poses(f, stamp)
         self.deadline = (float("inf") if f.done
                          else time.monotonic() + self.cfg.step_deadline)
 
@@ -234,6 +251,33 @@ class SimNode(Node):
         s.makespan_so_far, s.missed_actions = f.step, f.missed
         s.instance_id = f.instance_id
         self.state_pub.publish(s)
+
+    def publish_poses(self, f: Frame, stamp: Time) -> None:
+        """Every robot's cell centre (the viewer's convention, sdhn_sim.poses), robot i at i."""
+        m = self._poses_msg
+        m.header.stamp = stamp
+        for pose, (x, y) in zip(m.poses, f.positions.tolist(), strict=True):
+            pose.position.x, pose.position.y = cell_center(x, y)
+        self.poses_pub.publish(m)
+
+    def diagnostics_report(self) -> Report:
+        now, steps, missed = time.monotonic(), self.steps_total, self.sim.total_missed
+        t0, steps0, missed0 = self._window
+        self._window = (now, steps, missed)
+        d_steps, d_missed = steps - steps0, missed - missed0
+        robot_steps = d_steps * self.sim.num_robots
+        values: dict[str, float | int | str] = {
+            "episode": self.sim.episode, "step": self.sim.step,
+            "steps_per_s": d_steps / max(now - t0, 1e-9),
+            "steps": steps, "episodes_done": self.sim.episodes_done,
+            "missed_actions": missed, "missed_actions_in_window": d_missed,
+            "missed_fraction_in_window": d_missed / robot_steps if robot_steps else 0.0,
+        }
+        values |= drop_values(self.drops, self._drops_window.new(self.drops))
+        note = "" if self.started else f"waiting for {self.sim.num_robots} actors"
+        return make_report(self.get_fully_qualified_name(), self.get_namespace(), values,
+                           ("missed_actions_in_window", "missed_fraction_in_window",
+                            "dropped_in_window"), note)
 
     def observation(self, f: Frame, i: int, stamp: Time) -> RobotObservation:
         """Robot i's observation of frame f, in robot i's one message object, refilled per step

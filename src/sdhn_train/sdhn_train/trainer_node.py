@@ -12,7 +12,9 @@ long, cannot delay them. Version 1 (or the resumed version) is published at star
 
 Every dropped message, step or rollout is counted per cause and logged once per cause; the counts,
 the transitions assembled and learned, and the executor's longest stall go to
-``<status dir>/trainer.status.json`` (``sdhn_sim.ros.status``) for the launcher's status line.
+``<status dir>/trainer.status.json`` (``sdhn_sim.ros.status``) for the launcher's status line,
+and once a second to ``/diagnostics`` (queue depth, drops per cause, weights version;
+``sdhn_sim.diagnostics``).
 
 Parameters (typed, with descriptors): env and algo (a name of the env / algorithm registry), seed
 (>= 0), run_dir ("" = runs/<env>__<algo>__<seed>__ros-<time>), rollout_steps (>= 2), config
@@ -52,10 +54,12 @@ from sdhn_msgs.msg import (
     RobotObservation,
     TeamState,
 )
+from sdhn_sim.diagnostics import Report, WindowCounts, drop_values, make_report
 from sdhn_sim.drops import DropKind, describe
 from sdhn_sim.envs.registry import env_names, make_env
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.ros import cdr, topics
+from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
 from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP, STEP_DEPTH
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.ros.status import write_status
@@ -244,6 +248,8 @@ class TrainerNode(Node):
         self.create_subscription(EpisodeSummary, topics.absolute(self.ns, topics.EPISODE),
                                  self.on_episode, STEP)
         self.create_timer(LAG_PERIOD_S, self.on_lag_timer)
+        self._drops_window = WindowCounts()
+        self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
 
         self.publish_weights(self.learner.start_weights, time.time())
         self._stop = threading.Event()
@@ -353,12 +359,30 @@ class TrainerNode(Node):
 
     # -- status (own thread): a file for the launcher, a log line when it changes ------------
 
-    def status(self) -> dict[str, Any]:
-        st = self.assembler.stats
+    def all_drops(self) -> dict[str, int]:
+        """Every drop so far by cause: the node's, the assembler's and the learner's."""
         drops: dict[str, int] = {}
-        for source in (dict(self.dropped), dict(st.dropped), dict(self.learner_dropped)):
+        for source in (dict(self.dropped), dict(self.assembler.stats.dropped),
+                       dict(self.learner_dropped)):
             for kind, count in source.items():
                 drops[kind] = drops.get(kind, 0) + count
+        return drops
+
+    def diagnostics_report(self) -> Report:
+        drops = self.all_drops()
+        st = self.assembler.stats
+        values: dict[str, float | int | str] = {
+            "weights_version": self.version, "queue_depth": self.learner.waiting,
+            "pending_records": self.assembler.pending_records, "transitions": st.transitions,
+            "transitions_learned": self.transitions_learned, "rollouts": st.rollouts,
+        }
+        values |= drop_values(drops, self._drops_window.new(drops))
+        return make_report(self.get_fully_qualified_name(), self.ns, values,
+                           ("queue_depth", "dropped_in_window"))
+
+    def status(self) -> dict[str, Any]:
+        st = self.assembler.stats
+        drops = self.all_drops()
         lag, self._lag_max = self._lag_max, 0.0
         self._lag_worst = max(self._lag_worst, lag)
         return {"version": self.version, "transitions": st.transitions,

@@ -19,6 +19,10 @@ Which topics, with which QoS:
   subscribed with the named profile that matches its publishers (transient-local ->
   LATCHED_RECORDER, best-effort -> SENSOR, else STEP); a topic with no publisher yet waits for the
   next round.
+- Not recorded: the standard viewer topics ``poses`` and ``robot_<i>/target_pose``
+  (:func:`derived`). They are computed from what is recorded (TeamState positions, observations
+  and actions), and the simulator and actors publish them only while someone subscribes: a
+  recorder subscribing would make every actor build and send one more message per step.
 
 One file per run: an existing ``output`` is never overwritten (``-1``, ``-2``... is appended).
 The file is finalised (summary, index) on SIGINT/SIGTERM; a crash leaves it readable up to the
@@ -33,6 +37,10 @@ renders and writes (under the writer's lock), each viz message with its source's
 worker falls ``VIZ_QUEUE`` messages behind, viz for the newest is skipped and counted: the raw
 recording always comes first, and ``replay --add-viz`` can rebuild the viz from a ``viz:=false``
 recording.
+
+Once a second the recorder reports on ``/diagnostics`` (``sdhn_sim.diagnostics``): messages
+waiting for the writer thread, messages not written (a failed write), viz messages skipped or
+dropped by cause. It does not record ``/diagnostics`` itself (not under ``team_ns``).
 """
 
 from __future__ import annotations
@@ -52,11 +60,13 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
+from sdhn_sim.diagnostics import ERROR, OK, Report, WindowCounts, drop_values, make_report
 from sdhn_sim.drops import DropKind
 from sdhn_sim.recording.reader import fresh_path
 from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg_schema
 from sdhn_sim.recording.writer import McapRosWriter
 from sdhn_sim.ros import topics
+from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
 from sdhn_sim.ros.params import boolean, declare, string
 from sdhn_sim.ros.qos import LATCHED_RECORDER, SENSOR, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
@@ -84,6 +94,11 @@ PARAMETERS = {
     # protobuf channels. `replay --add-viz` makes a Foxglove copy of a plain recording.
     "viz": (False, boolean("also write the /viz/* channels (Foxglove) into the file")),
 }
+
+
+def derived(relative: str) -> bool:
+    """A standard viewer topic computed from recorded ones (not recorded)."""
+    return relative == topics.POSES or relative.rsplit("/", 1)[-1] == topics.TARGET_POSE
 
 
 def profile_for(publisher_qos: list[QoSProfile]) -> QoSProfile:
@@ -190,6 +205,8 @@ class RecorderNode(Node):
         self.discover()
         self.create_timer(DISCOVERY_PERIOD_S, self.discover)
         self.create_timer(STATUS_PERIOD_S, self.log_status)
+        self._drops_window = WindowCounts()
+        self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
         note = "" if self.path == requested else f" ({requested} exists)"
         note += "" if viz else "; no viz channels (viz:=false)"
         self.get_logger().info(f"ready: recording {self.ns}/* to {self.path}{note}")
@@ -212,7 +229,7 @@ class RecorderNode(Node):
     def discover(self) -> None:
         for topic, types in self.get_topic_names_and_types():
             rel = topics.relative_to(self.ns, topic)
-            if rel is None or topic in self._subs or topic in self.skipped:
+            if rel is None or topic in self._subs or topic in self.skipped or derived(rel):
                 continue
             robot = topics.robot_of(rel)
             if robot and robot[0] not in self._robots:
@@ -274,6 +291,22 @@ class RecorderNode(Node):
         if line.split(",", maxsplit=1)[0] != self._last_status.split(",", maxsplit=1)[0]:
             self._last_status = line
             self.get_logger().info(line)
+
+    def diagnostics_report(self) -> Report:
+        drops: dict[str, int] = {}
+        if self.viz is not None:
+            drops = {f"viz/{k}": v for k, v in self.viz.deriver.dropped.items()}
+            drops["viz/skipped_worker_behind"] = self.viz.skipped
+        values: dict[str, float | int | str] = {
+            "messages_written": self.writer.messages_written,
+            "write_queue_depth": len(self._pending), "not_written": self.not_written,
+            "topics": sum(1 for c in self.counts.values() if c), "file": str(self.path),
+        }
+        values |= drop_values(drops, self._drops_window.new(drops))
+        note = f"writing stopped: {self.write_error}" if self.write_error else ""
+        return make_report(self.get_fully_qualified_name(), self.ns, values,
+                           ("write_queue_depth", "not_written", "dropped_in_window"), note,
+                           floor=ERROR if self.write_error else OK)
 
     def stop(self) -> None:
         self._stop_writing.set()

@@ -50,3 +50,21 @@ SENSOR = QoSProfile(
     reliability=ReliabilityPolicy.BEST_EFFORT,
     durability=DurabilityPolicy.VOLATILE,
 )
+
+# /diagnostics, as diagnostic_updater publishes it (reliable, volatile): a reliable writer also
+# matches best-effort readers (Foxglove, rqt_robot_monitor), one array per node per second.
+DIAGNOSTICS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+# Standard viewer topics (robot poses, an actor's target pose): the newest pose is what counts, a
+# viewer that falls behind loses old ones, and a reliable writer matches every kind of reader.
+POSES = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=4,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)

@@ -19,9 +19,14 @@ STATE = "state"  # sdhn_msgs/TeamState, STEP
 EPISODE = "episode"  # sdhn_msgs/EpisodeSummary, STEP
 WEIGHTS = "policy/weights"  # sdhn_msgs/PolicyWeights, LATCHED
 HYPERGRAPH = "hypergraph"  # sdhn_msgs/Hypergraph, SENSOR
+POSES = "poses"  # geometry_msgs/PoseArray (frame map, cell centres, 1 cell = 1 m), POSES
 # Robot topics, relative to the robot's namespace robot_<i>.
 OBS = "obs"  # sdhn_msgs/RobotObservation, STEP
 ACTION = "action"  # sdhn_msgs/RobotAction, STEP
+TARGET_POSE = "target_pose"  # geometry_msgs/PoseStamped: the cell the next action moves to, POSES
+
+# ROS-wide standard topics (absolute; shared by every node of every team).
+DIAGNOSTICS = "/diagnostics"  # diagnostic_msgs/DiagnosticArray, DIAGNOSTICS
 
 # Foxglove channels of the viz node and of recordings with viz (absolute: not team topics).
 VIZ_SCENE = "/viz/scene"
@@ -68,6 +73,10 @@ def robot_obs(i: int) -> str:
 
 def robot_action(i: int) -> str:
     return f"{robot(i)}/{ACTION}"
+
+
+def robot_target_pose(i: int) -> str:
+    return f"{robot(i)}/{TARGET_POSE}"
 
 
 def robot_of(relative: str) -> tuple[int, str] | None:

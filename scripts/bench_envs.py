@@ -172,7 +172,7 @@ def bench_maif(name: str, b: int, steps: int, repeats: int) -> tuple[float, floa
 def bench_rware(name: str, b: int, steps: int, repeats: int) -> tuple[float, float]:
     from sdhn_sim.envs.rware_env import RwareEnv, make_rware_gym
 
-    env = make_env(name, num_envs=b, seed=0)
+    env = make_env(name, num_envs=b, seed=0, backend="rware")
     assert isinstance(env, RwareEnv)
     env.reset()
     raws = [make_rware_gym(env.env_id, env.max_steps) for _ in range(b)]

@@ -60,7 +60,7 @@ def measure(env: str, algo: str, iterations: int, sets: list[str]) -> dict[str, 
         for _ in range(iterations):
             tr.train_iteration()
         wall = time.perf_counter() - t0
-        u1 = gather_usage(group)  # CPU seconds summed over the learner processes
+        u1 = gather_usage(group)  # CPU seconds summed over the data-parallel ranks
         cpu = sum(b.cpu_s - a.cpu_s for a, b in zip(u0, u1, strict=True))
         steps = tr.global_step - step0
         eval_wall = eval_cpu = 0.0
@@ -79,7 +79,7 @@ def measure(env: str, algo: str, iterations: int, sets: list[str]) -> dict[str, 
             "learner_processes": cfg.train.learner_processes,
             "steps_per_s": steps / wall_all, "steps_per_cpu_s": steps / cpu_all,
             "train_steps_per_s": steps / wall, "train_steps_per_cpu_s": steps / cpu,
-            "peak_rss_mib": peak_rss,  # summed over the learner processes
+            "peak_rss_mib": peak_rss,  # summed over the data-parallel ranks
             "share": {k: v / wall_all for k, v in parts.items()},
             "hours_per_10M": 1e7 / (steps / wall_all) / 3600}
 
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeat", type=int, default=1, help="runs per env x algo (min/median)")
     p.add_argument("--load", type=int, default=0, help="busy processes running beside it")
     p.add_argument("--learner-processes", type=int, default=1,
-                   help="train.learner_processes: K data-parallel learner processes (CPU "
+                   help="train.learner_processes: K data-parallel ranks (CPU "
                         "seconds and peak RSS summed over them)")
     p.add_argument("--set", action="append", default=[],
                    help="config override SECTION.FIELD=V (e.g. train.threads=2)")

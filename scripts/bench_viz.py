@@ -5,7 +5,8 @@
 1. Build + encode time of each viz message (scene with and without the static map, hypergraph
    scene, P_H image, metrics JSON) for one team state of ``--env``.
 2. The viz node's per-state path (validate, trail, and -- only if the channel has a subscriber --
-   build, encode and send the scene + metrics) on a real Foxglove server, first with no client,
+   build, encode and send the scene + metrics) on the viz node's own WebSocket server
+   (sdhn_sim.viz.server), first with no client,
    then with one ``websockets`` client (a separate process) subscribed to every channel.
 No ROS here: the ROS callback adds the same small constant in both cases.
 """
@@ -22,14 +23,12 @@ import time
 from types import SimpleNamespace
 from typing import Any
 
-import foxglove
 import numpy as np
-from foxglove.channels import SceneUpdateChannel
 
 from sdhn_sim.envs import make_single_env
 from sdhn_sim.ros.topics import VIZ_METRICS, VIZ_SCENE
-from sdhn_sim.viz.channels import METRICS_SCHEMA
 from sdhn_sim.viz.renderer import VizRenderer
+from sdhn_sim.viz.server import VizServer
 
 
 def team_messages(env_name: str, count: int) -> list[Any]:
@@ -44,7 +43,7 @@ def team_messages(env_name: str, count: int) -> list[Any]:
             env_name=env_name, episode=0, step=step, num_robots=env.num_robots,
             state=array.array("f", state.astype(np.float32).tobytes()),
             positions=pos.reshape(-1).tolist(), team_reward=0.0, terminated=False,
-            truncated=False, makespan_so_far=step, missed_actions=0,
+            truncated=False, makespan_so_far=step, missed_actions=0, instance_id=-1,
         ))
         res = env.step(rng.integers(0, env.num_actions, env.num_robots))
         if res.terminated or res.truncated:
@@ -91,18 +90,18 @@ def encoding_costs(env_name: str) -> None:
         print(f"  {name:32s} {per_call_ms(fn):7.3f} ms" + (f"  {size:7d} B" if size else ""))
 
 
-def run_states(msgs: list[Any], scene: Any, metrics: Any) -> tuple[float, int]:
+def run_states(msgs: list[Any], server: VizServer) -> tuple[float, int]:
     """The node's on_state path; returns (mean ms per state, scenes sent)."""
     r = VizRenderer()
     sent = 0
     t0 = time.perf_counter()
     for i, msg in enumerate(msgs):
         r.on_state(msg)
-        if scene.has_sinks():
-            scene.log(r.scene(with_static=i % 50 == 0))
+        if server.has_sinks(VIZ_SCENE):
+            server.log(VIZ_SCENE, r.scene(with_static=i % 50 == 0).encode(), time.time_ns())
             sent += 1
-        if metrics.has_sinks():
-            metrics.log(r.metrics())
+        if server.has_sinks(VIZ_METRICS):
+            server.log(VIZ_METRICS, json.dumps(r.metrics()).encode(), time.time_ns())
     return (time.perf_counter() - t0) / len(msgs) * 1e3, sent
 
 
@@ -110,7 +109,7 @@ async def client(port: int, seconds: float) -> None:
     import websockets
 
     async with websockets.connect(
-        f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], proxy=None,
+        f"ws://127.0.0.1:{port}", subprotocols=["foxglove.websocket.v1"], proxy=None,
         max_size=None,
     ) as ws:
         subscribed = False
@@ -135,11 +134,8 @@ async def client(port: int, seconds: float) -> None:
 
 def overhead(env_name: str, states: int) -> None:
     msgs = team_messages(env_name, states)
-    ctx = foxglove.Context()
-    server = foxglove.start_server(host="127.0.0.1", port=0, context=ctx)
-    scene = SceneUpdateChannel(VIZ_SCENE, context=ctx)
-    metrics = foxglove.Channel(VIZ_METRICS, schema=METRICS_SCHEMA, context=ctx)
-    idle_ms, sent = run_states(msgs, scene, metrics)
+    server = VizServer("127.0.0.1", 0, 2, "bench", lambda line: None)
+    idle_ms, sent = run_states(msgs, server)
     print(f"per-state cost, {env_name}, {states} states:")
     print(f"  no client:  {idle_ms:7.3f} ms/state  (scenes encoded: {sent})")
     proc = subprocess.Popen(
@@ -150,14 +146,15 @@ def overhead(env_name: str, states: int) -> None:
     line = proc.stdout.readline()
     assert "subscribed" in line, line
     deadline = time.monotonic() + 5
-    while not (scene.has_sinks() and metrics.has_sinks()) and time.monotonic() < deadline:
+    while (not (server.has_sinks(VIZ_SCENE) and server.has_sinks(VIZ_METRICS))
+           and time.monotonic() < deadline):
         time.sleep(0.01)
-    busy_ms, sent = run_states(msgs, scene, metrics)
+    busy_ms, sent = run_states(msgs, server)
     print(f"  one client: {busy_ms:7.3f} ms/state  (scenes encoded: {sent}; node's max_rate "
           f"caps this at 30/s live)")
     proc.terminate()
     proc.wait()
-    server.stop()
+    server.close()
 
 
 def main() -> int:

@@ -5,7 +5,8 @@
 #      MCAP recorder, a few episodes of completed formations (success and makespan per episode),
 #   2. train a short while over ROS: simulator + 10 actor processes (sampling) + trainer node,
 #      which pushes new weights versions to the actors as it learns,
-#   3. print the MCAP path and a plot of the runs (per-episode makespan and return).
+#   3. print the MCAP path, a plot of the runs (per-episode makespan and return) and a GIF of a
+#      completed deployed episode (docs/watching-episodes.md).
 # Knobs: EPISODES (default 3), TRAIN_EPISODES (default 2), MODEL (default models/maif-10-sdhn),
 # TRAIN=inprocess (train with the in-process trainer instead of the trainer node), ROS_DOMAIN_ID.
 set -euo pipefail
@@ -46,8 +47,12 @@ MCAP="$RUN_DIR/deploy/recording.mcap"
 # The recording itself is plain ROS (rosbags, rosbag2 tools read it); its Foxglove copy adds the
 # drawn scene, hypergraph and metrics channels.
 scripts/ros2 run sdhn_sim replay "$MCAP" --add-viz --out "${MCAP%.mcap}-foxglove.mcap" >/dev/null
+# The last completed deployed episode as a GIF (the last episode, said so, if none completed).
+GIF="$RUN_DIR/deploy/episode.gif"
+scripts/ros2 run sdhn_sim replay "$MCAP" --export-episode completed --gif "$GIF" | sed 's/^/[demo] /'
 echo "[demo] summary:  scripts/ros2 run sdhn_sim replay $MCAP --summary"
 echo "[demo] episodes: $RUN_DIR/deploy/episodes.csv"
 echo "[demo] MCAP:     $MCAP"
 echo "[demo] Foxglove: ${MCAP%.mcap}-foxglove.mcap (open it in Foxglove with configs/foxglove/sdhn_layout.json)"
 echo "[demo] plot:     $PLOT"
+echo "[demo] GIF:      $GIF"

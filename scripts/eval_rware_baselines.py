@@ -1,13 +1,17 @@
 #!/usr/bin/env python3
-"""RWARE baselines: deliveries and return per episode of a random and a scripted policy.
+"""RWARE baselines: deliveries and return per episode of random and scripted policies.
 
     .venv/bin/python scripts/eval_rware_baselines.py [rware-3 rware-6 rware-9] [--episodes 10]
+        [--policies random,scripted,decentralised]
 
 One episode (500 steps, rware's limit) from each of the seeds ``--seed .. --seed+episodes-1``;
 prints mean ± std (population std over those episodes) of the requested shelves delivered and of
 the return under rware's own reward (individual: +1 to the robot on the goal per delivery, so the
 two agree). ``scripted`` is the centralised fetch-deliver-return heuristic of
-``sdhn_sim.envs.rware_scripted``; ``random`` draws the 5 actions uniformly.
+``sdhn_sim.envs.rware_scripted`` (it reads rware's warehouses, so it runs on the real rware
+backend); ``decentralised`` is ``sdhn_sim.envs.rware_decentralised``, each robot acting on its own
+observation (batched backend); ``random`` draws the 5 actions uniformly (batched backend; the two
+backends are equal step for step).
 """
 
 from __future__ import annotations
@@ -22,17 +26,28 @@ import numpy as np
 
 from sdhn_sim.envs import make_env
 from sdhn_sim.envs.api import reward_name
-from sdhn_sim.envs.rware_env import RwareEnv
-from sdhn_sim.envs.rware_scripted import RandomPolicy, ScriptedPolicy, run_episodes
+from sdhn_sim.envs.rware_batched import RwareBatchedEnv
+from sdhn_sim.envs.rware_decentralised import DecentralisedPolicy
+from sdhn_sim.envs.rware_scripted import ObsPolicy, RandomPolicy, ScriptedPolicy, run_episodes
 
-POLICIES = {"random": RandomPolicy, "scripted": ScriptedPolicy}
+POLICIES = ("random", "scripted", "decentralised")
 
 
 def evaluate(name: str, policy: str, *, episodes: int, seed: int) -> dict[str, object]:
-    env = make_env(name, num_envs=episodes, seed=seed)
-    assert isinstance(env, RwareEnv)
+    if policy not in POLICIES:
+        raise ValueError(f"--policies: {policy!r}; allowed: {', '.join(POLICIES)}")
+    backend = "rware" if policy == "scripted" else "batched"
+    env = make_env(name, num_envs=episodes, seed=seed, backend=backend)
+    actor: ScriptedPolicy | ObsPolicy
+    if policy == "scripted":
+        actor = ScriptedPolicy(seed)
+    elif policy == "decentralised":
+        assert isinstance(env, RwareBatchedEnv)
+        actor = DecentralisedPolicy(env.layout, env.num_robots, seed)
+    else:
+        actor = RandomPolicy(seed)
     t0 = time.perf_counter()
-    eps = run_episodes(env, POLICIES[policy](seed), seed=seed)
+    eps = run_episodes(env, actor, seed=seed)
     wall = time.perf_counter() - t0
     deliveries = np.array([e.deliveries for e in eps], dtype=float)
     returns = np.array([e.episode_return for e in eps])
@@ -48,13 +63,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("envs", nargs="*", default=["rware-3"], help="RWARE tasks (default rware-3)")
     p.add_argument("--episodes", type=int, default=10, help="one episode per seed")
     p.add_argument("--seed", type=int, default=0, help="first seed")
-    p.add_argument("--policies", default="random,scripted")
+    p.add_argument("--policies", default="random,scripted,decentralised",
+                   help=f"comma-separated, of {', '.join(POLICIES)}")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     args = p.parse_args(argv)
     # rware 2.0.0 returns its rewards as a list, which gymnasium's checker warns about
     warnings.filterwarnings("ignore", message=".*reward returned by")
+    policies = args.policies.split(",")
+    bad = [x for x in policies if x not in POLICIES]
+    if bad:
+        print(f"--policies: {bad[0]!r} is not a policy; allowed: {', '.join(POLICIES)}",
+              file=sys.stderr)
+        return 2
     for name in args.envs:
-        for policy in args.policies.split(","):
+        for policy in policies:
             r = evaluate(name, policy, episodes=args.episodes, seed=args.seed)
             if args.json:
                 print(json.dumps(r), flush=True)

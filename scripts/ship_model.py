@@ -78,12 +78,25 @@ def main(argv: list[str] | None = None) -> int:
             "features": rt.spec.features, "seed": cfg["train"]["seed"],
             "team_steps": summary.get("global_step"),
             "instance_set": cfg["env"].get("instance_set"),
-            "warm_start": cfg.get("actor", {}).get("init_from"), "weights_sha256": rt_sha(actor),
+            "warm_start": warm_start_name(cfg.get("actor", {}).get("init_from")),
+            "weights_sha256": rt_sha(actor),
             "evaluation": {"instances_per_set": k, "seed": args.seed, **results}}
     (args.out / "card.json").write_text(json.dumps(card, indent=2) + "\n")
     (args.out / "card.md").write_text(card_markdown(card, args.note))
     print(f"[ship] wrote {args.out}/ (actor.safetensors, actor.json, card.md, card.json)")
     return 0
+
+
+def warm_start_name(init_from: str | None) -> str | None:
+    """The warm start as a card names it: repo-relative when it is in the repository (e.g. a
+    shipped model), else the run directory's name and the file (never a machine's path)."""
+    if not init_from:
+        return None
+    path = Path(init_from).resolve()
+    repo = Path(__file__).resolve().parents[1]
+    if path.is_relative_to(repo):
+        return str(path.relative_to(repo))
+    return f"{path.parent.name}/{path.name}"
 
 
 def rt_sha(actor: Path) -> str:

@@ -7,7 +7,8 @@ trainer turned into complete transitions (its status file against the recorded T
 steps a killed actor did not answer excepted), the simulator's deadline misses outside the kills'
 outages, how long after an update's end every live actor acts with the new weights (the weights'
 stamp is the update's end; the first recorded action of each actor with that version), and the
-trainer's RSS (node + its learner process) after warm-up. The load average is printed with them.
+trainer's RSS (node + its learner offload process) after warm-up. The load average is printed
+with them.
 
     .venv/bin/python scripts/soak.py --minutes 10          # nice it on a shared machine
 
@@ -81,7 +82,7 @@ def children(parent: int) -> dict[str, int]:
 
 
 def descendants(pid: int) -> list[int]:
-    """Child processes of ``pid`` (the trainer's learner process)."""
+    """Child processes of ``pid`` (the trainer's learner offload process)."""
     out = []
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:

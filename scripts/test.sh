@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up everything (idempotent, see setup.sh) and run every quality gate:
-# ruff on the whole tree, mypy on src/, then pytest (extra arguments go to pytest).
+# ruff on the whole tree, mypy on src/, the docs site (mkdocs build --strict), then pytest
+# (extra arguments go to pytest).
 # Tests that fail are re-run once, on their own, as a flakiness report: the output ends with a
 # "[test] FLAKY" line naming every test that failed and then passed on its re-run (CI shows
 # them), and a "[test] FAILED TWICE" line for those that fail the run.
@@ -15,6 +16,10 @@ echo "[test] ruff check"
 echo "[test] mypy on src/"
 MYPYPATH=src/sdhn_sim:src/sdhn_policy:src/sdhn_train:src/sdhn_bringup .venv/bin/mypy \
   -p sdhn_sim -p sdhn_policy -p sdhn_train -p sdhn_bringup
+echo "[test] docs: mkdocs build --strict (a broken link or a page missing from disk fails)"
+SITE_DIR="$(mktemp -d -t sdhn-site-XXXXXX)"
+NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict --quiet --site-dir "$SITE_DIR"
+rm -rf "$SITE_DIR"
 echo "[test] pytest"
 status=0
 .venv/bin/python -m pytest "$@" || status=$?

@@ -12,7 +12,7 @@ from sdhn_train.evaluation import headline, set_metrics
 
 @pytest.mark.filterwarnings("ignore:.*reward returned by")
 def test_rware_evaluation_logs_deliveries():
-    env = make_env("rware-3", num_envs=2, seed=0, max_steps=100)
+    env = make_env("rware-3", num_envs=2, seed=0, max_steps=100, backend="rware")
     assert isinstance(env, RwareEnv)
     eps = run_episodes(env, ScriptedPolicy(seed=0), seed=0)
     m = set_metrics("", eps)

@@ -4,25 +4,20 @@ completed, the return under the reward named)."""
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+from script_modules import load_script
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "scripts" / "compare_ros_training.py"
 
 
 def script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("compare_ros_training", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("compare_ros_training")
 
 
 @pytest.mark.parametrize(("args", "flag"), [

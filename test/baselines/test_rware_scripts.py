@@ -1,39 +1,40 @@
-"""scripts/eval_rware_baselines.py on the real rware, and plot_curves' baseline lines."""
+"""scripts/eval_rware_baselines.py on both RWARE backends, and plot_curves' baseline lines."""
 
 from __future__ import annotations
 
 import argparse
 import csv
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+from script_modules import load_script
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 def _script(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(f"sdhn_script_{name}",
-                                                  REPO / "scripts" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(name)
 
 
-def test_eval_rware_baselines_prints_both_policies(capsys):
+def test_eval_rware_baselines_prints_every_policy(capsys):
     evaluate = _script("eval_rware_baselines")
     assert evaluate.main(["rware-3", "--episodes", "1", "--seed", "2", "--json"]) == 0
     rows = {r["policy"]: r for r in map(json.loads, capsys.readouterr().out.splitlines())}
-    assert set(rows) == {"random", "scripted"}, rows
+    assert set(rows) == {"random", "scripted", "decentralised"}, rows
     for r in rows.values():
         assert r["deliveries_mean"] == r["return_mean"] and r["seeds"] == "2..2", r
         assert "rware" in r["reward"], r
     assert rows["scripted"]["deliveries_mean"] >= 15 > rows["random"]["deliveries_mean"], rows
+    assert rows["decentralised"]["deliveries_mean"] >= 5, rows
+
+
+def test_eval_rware_baselines_refuses_an_unknown_policy(capsys):
+    evaluate = _script("eval_rware_baselines")
+    assert evaluate.main(["rware-3", "--policies", "random,greedy"]) == 2
+    err = capsys.readouterr().err
+    assert "--policies" in err and "greedy" in err and "decentralised" in err, err
 
 
 def test_plot_curves_draws_baselines(tmp_path):

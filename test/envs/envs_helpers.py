@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from types import ModuleType
 
 import numpy as np
+from script_modules import load_script
 
 from sdhn_sim.envs.maif import MaifEnv
 from sdhn_sim.envs.maif_instances import MaifConfig, MaifInstances
@@ -42,12 +41,4 @@ def scenario(
 
 def bench_module() -> ModuleType:
     """``scripts/bench_envs.py`` (holds ``LoopMaif``, the per-robot loop reference)."""
-    name = "sdhn_bench_envs"
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, REPO / "scripts" / "bench_envs.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("bench_envs")

@@ -141,7 +141,7 @@ def test_all_on_goal_bonus_and_episode_stats():
     np.testing.assert_allclose(env.final_worlds[0].positions, goals)
     np.testing.assert_allclose(res.reward[0], want.sum(), atol=1e-5)
     (ep,) = res.episodes
-    assert (ep.makespan, ep.success, ep.length, ep.collisions) == (1, True, 1, 0)
+    assert (ep.makespan, ep.completed, ep.length, ep.collisions) == (1, True, 1, 0)
     assert abs(ep.formation_error) < 1e-9
     # the next episode started: the env is back at the starts
     assert env.positions[0].tolist() == [list(s) for s in starts]
@@ -153,7 +153,7 @@ def test_truncation_reports_not_completed():
         res = env.step(np.array([[STAY, LEFT]]))
         assert res.truncated[0] == (t == 2) and not res.terminated[0]
     (ep,) = res.episodes
-    assert ep.makespan is None and not ep.success and ep.length == 3
+    assert ep.makespan is None and not ep.completed and ep.length == 3
     assert ep.collisions == 0
     np.testing.assert_array_equal(res.final_obs[0, 1, :2] * 7, [2, 5])  # x moved 5 -> 2
 

@@ -38,6 +38,7 @@ def test_unknown_name_lists_known_names():
         ("rware-3", {"size": "huge"}, "size"),
         ("rware-3", {"difficulty": "insane"}, "difficulty"),
         ("rware-3", {"instance_ids": [1]}, "instance_ids"),
+        ("rware-3", {"backend": "gym"}, "backend"),
     ],
 )
 def test_bad_overrides_name_the_field(name, overrides, field):

@@ -15,7 +15,7 @@ from sdhn_sim.envs.rware_env import RwareEnv
 @pytest.mark.filterwarnings("ignore:.*reward returned by")
 def test_adapter_matches_raw_rware(name, n):
     b, steps, limit = 2, 45, 20
-    env = make_env(name, num_envs=b, seed=5, max_steps=limit)
+    env = make_env(name, num_envs=b, seed=5, max_steps=limit, backend="rware")
     assert isinstance(env, RwareEnv) and env.env_id == f"rware-small-{n}ag-v2"
     raws = [gym.make(env.env_id, max_steps=limit) for _ in range(b)]
     obs, state = env.reset()

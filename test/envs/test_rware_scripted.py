@@ -21,7 +21,7 @@ pytestmark = pytest.mark.filterwarnings("ignore:.*reward returned by")
 
 
 def _rware(name: str, num_envs: int, max_steps: int) -> RwareEnv:
-    env = make_env(name, num_envs=num_envs, seed=0, max_steps=max_steps)
+    env = make_env(name, num_envs=num_envs, seed=0, max_steps=max_steps, backend="rware")
     assert isinstance(env, RwareEnv)
     return env
 

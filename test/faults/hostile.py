@@ -19,6 +19,8 @@ from safetensors.numpy import save as st_save
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.weights import ACTOR_FORMAT, ActorWeights, decode_weights, encode_actor
 
+from .crafted_weights import deep_header, deep_spec, spec_number
+
 
 def obs_msg(episode: int, step: int, robot: int, n: int, obs: np.ndarray) -> RobotObservation:
     m = RobotObservation(episode=episode, step=step, robot_id=robot, num_robots=n)
@@ -75,4 +77,12 @@ def hostile_weights(good: ActorWeights, version: int, marker: Path
         "unknown_format": weights_msg("sdhn-actor/99", version, valid.payload),
         "oversized": weights_msg(ACTOR_FORMAT, version, bytes(64 * 1024 * 1024 + 1)),
         "bad_weights:pickle": weights_msg(ACTOR_FORMAT, version, pickled),
+        # each of these once raised past the drop path (RecursionError, OverflowError) and
+        # took every actor down: ~400 kB of nesting, a spec number that is not finite
+        "bad_weights:deep_header": weights_msg(ACTOR_FORMAT, version, deep_header(valid)),
+        "bad_weights:deep_spec": weights_msg(ACTOR_FORMAT, version, deep_spec(valid)),
+        "bad_weights:spec_infinity": weights_msg(ACTOR_FORMAT, version,
+                                                 spec_number(valid, "obs_size", "Infinity")),
+        "bad_weights:spec_overflow": weights_msg(ACTOR_FORMAT, version,
+                                                 spec_number(valid, "gru_hidden", "1e999")),
     }

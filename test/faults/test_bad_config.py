@@ -70,7 +70,7 @@ CASES = {
     "trainer-missing-init-from": (("sdhn_train", "trainer"),
                                   ["env:=maif-tiny", "init_from:=/nonexistent/actor.safetensors"],
                                   "init_from:"),
-    "trainer-unreadable-init-from": (("sdhn_train", "trainer"),  # found by the learner process
+    "trainer-unreadable-init-from": (("sdhn_train", "trainer"),  # found by the learner offload
                                      ["env:=maif-tiny", "init_from:={tmp}/list.safetensors"],
                                      "init_from:"),
     "trainer-corrupt-checkpoint": (("sdhn_train", "trainer"),

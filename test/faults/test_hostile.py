@@ -112,22 +112,26 @@ def test_actor_drops_each_malformed_obs_and_weights_kind(tmp_path: Path) -> None
             assert answer(0, 2) is not None, (
                 f"step 2 unanswered after stale/future:\n{actor.output}")
             n_actions = len(got)
-            # Weights: each hostile kind (acked before the next: the topic keeps only the last).
-            for msg in hostile_weights(good, 2, marker).values():
+            # Weights: each hostile kind, acked, then an observation answered before the next:
+            # the topic keeps only the last message, and the actor handles events in arrival
+            # order, so the answer proves the weights message was taken (not overwritten).
+            step = 3
+            for kind, msg in hostile_weights(good, 2, marker).items():
                 t0 = time.monotonic()
                 w_pub.publish(msg)
                 assert w_pub.wait_for_all_acked(Duration(seconds=20)), (
                     f"weights ({len(msg.payload)} B) not acked in 20 s")
-                print(f"hostile weights {len(msg.payload)} B acked in "
-                      f"{time.monotonic() - t0:.2f} s")
-            after = answer(0, 3)
-            assert after is not None and after.policy_version == 1, (
-                f"after hostile weights: {after} (expected version 1 kept)\n{actor.output}")
-            assert len(got) == n_actions + 1, "an action answered a dropped message"
+                after = answer(0, step, timeout=30)
+                assert after is not None and after.policy_version == 1, (
+                    f"after {kind}: {after} (expected version 1 kept)\n{actor.output}")
+                print(f"hostile weights {kind} ({len(msg.payload)} B) dropped, version 1 kept, "
+                      f"in {time.monotonic() - t0:.2f} s")
+                step += 1
+            assert len(got) == n_actions + step - 3, "an action answered a dropped message"
             # Valid weights are still taken (between steps): version 2 within a few steps.
             w_pub.publish(encode_weights_msg(good, 2))
-            step, v2 = 4, None
-            while step < 30 and v2 is None:
+            v2, last = None, step + 26
+            while step < last and v2 is None:
                 a = answer(0, step)
                 assert a is not None, f"step {step} unanswered:\n{actor.output}"
                 v2 = a if a.policy_version == 2 else None
@@ -143,7 +147,7 @@ def test_actor_drops_each_malformed_obs_and_weights_kind(tmp_path: Path) -> None
     counts = stop_counts(out, "drops:")
     expected = {"wrong_obs_length": 2, "non_finite_obs": 4, "wrong_robot": 2, "stale_step": 2,
                 "future_step": 2, "bad_sha256": 1, "bad_tensors": 2, "unknown_format": 1,
-                "oversized_payload": 1, "bad_weights": 1}
+                "oversized_payload": 1, "bad_weights": 5}
     assert counts == expected, f"drop counts {counts}, expected {expected}\n{out}"
     assert logged == Counter(dict.fromkeys(expected, 1)), f"log lines per kind: {logged}\n{out}"
     print(f"actor drops {counts}; version 2 first used at step {v2.step}")
@@ -209,7 +213,7 @@ def test_sim_drops_each_hostile_action_kind(tmp_path: Path) -> None:
     assert missed.get(4) == 1 and missed.get(7) == 1, f"missed per step {missed}"
     assert all(v == 0 for s, v in missed.items() if s not in (4, 7)), f"missed {missed}"
     counts = stop_counts(out, "totals:")
-    expected = {"duplicate": 2, "out_of_range": 2, "stale_step": 2, "future_step": 2,
+    expected = {"duplicate_action": 2, "action_out_of_range": 2, "stale_step": 2, "future_step": 2,
                 "unknown_robot": 2}
     assert counts == expected, f"sim drop counts {counts}, expected {expected}\n{out}"
     logged = drop_lines(out, "dropped action")

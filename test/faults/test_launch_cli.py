@@ -129,3 +129,69 @@ def test_a_bad_set_value_is_one_line(tmp_path: Path, item: str) -> None:
                f"run_dir={tmp_path / 'run'}", "--print-config")
     assert r.returncode == 2
     assert item.split("=", maxsplit=1)[0] in one_line(r.stderr)
+
+
+def test_launch_sh_takes_relative_paths_from_the_callers_directory(tmp_path: Path) -> None:
+    """scripts/launch.sh used to change into the checkout, so a relative weights path (or
+    run_dir, or config) named a file there, not where the user stood."""
+    (tmp_path / "mine").mkdir()
+    fit = tiny_fit_weights(tmp_path / "mine" / "actor.safetensors")
+    r = subprocess.run([str(REPO / "scripts" / "launch.sh"), "--set", "env=maif-tiny",
+                        "--set", "weights=mine/actor.safetensors", "--print-config"],
+                       capture_output=True, text=True, timeout=60, cwd=tmp_path, check=False)
+    assert r.returncode == 0, r.stderr
+    assert f"weights: {fit.resolve()}" in r.stdout, r.stdout
+
+
+def tiny_fit_weights(path: Path) -> Path:
+    from sdhn_sim.envs import make_single_env
+
+    env = make_single_env("maif-tiny", seed=0)
+    return wrong_weights(path, obs_size=env.obs_size)
+
+
+def test_a_weights_directory_means_its_actor_safetensors_only(tmp_path: Path) -> None:
+    """A directory without actor.safetensors is refused naming what it holds; it never picks
+    the last of the checkpoints or actors found anywhere below it."""
+    from sdhn_bringup.supervisor import LaunchConfigError, resolve_weights
+
+    run = tmp_path / "run"
+    (run / "old" / "z").mkdir(parents=True)
+    tiny_fit_weights(run / "old" / "z" / "actor.safetensors")
+    with pytest.raises(LaunchConfigError, match=r"has no actor\.safetensors") as e:
+        resolve_weights(str(run))
+    assert "old/z/actor.safetensors" in str(e.value) and "name the file" in str(e.value)
+    top = tiny_fit_weights(run / "actor.safetensors")
+    assert resolve_weights(str(run)) == top
+
+
+@pytest.mark.parametrize("name", ["..", ".", "../netns", "a/b", "", "x" * 65])
+def test_a_hosts_entry_must_name_a_namespace(tmp_path: Path, name: str,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """``hosts.sim=..`` passed validation (``/run/netns/..`` exists) and failed at run time."""
+    from sdhn_bringup import supervisor
+
+    netns = tmp_path / "netns"
+    (netns / "a").mkdir(parents=True)
+    (netns / "real").touch()
+    monkeypatch.setattr(supervisor, "NETNS_DIR", netns)
+    ok = supervisor.load_config(None, ["mode=train", "env=maif-tiny", "hosts.sim=real"])
+    assert ok.hosts == {"sim": "real"}
+    with pytest.raises(supervisor.LaunchConfigError, match=r"hosts\.sim: no network namespace"):
+        supervisor.load_config(None, ["mode=train", "env=maif-tiny", f"hosts.sim={name}"])
+
+
+@pytest.mark.parametrize("attack", ["deep_header", "spec_infinity"])
+def test_crafted_weights_are_one_line(tmp_path: Path, attack: str) -> None:
+    """Deeply nested or non-finite headers once escaped as RecursionError / OverflowError."""
+    from sdhn_policy.weights import decode_weights, load_actor_file
+
+    from .crafted_weights import write_crafted_file
+
+    good = load_actor_file(tiny_fit_weights(tmp_path / "good.safetensors"))
+    decode_weights(good)
+    w = write_crafted_file(tmp_path / "actor.safetensors", good, attack)
+    r = launch("--set", f"run_dir={tmp_path / 'run'}", "--set", f"weights={w}",
+               "--set", "env=maif-tiny", "--print-config")
+    assert r.returncode == 2, r.stderr
+    assert one_line(r.stderr).startswith("launch: invalid configuration: weights:"), r.stderr

@@ -1,7 +1,7 @@
 """``train`` as a user drives it (the real console script, as a subprocess): resume takes the
 run's saved config and never writes into the run before its checkpoint loaded, falls back past a
 damaged checkpoint, refuses unsafe changes and reused names; Ctrl-C saves a checkpoint (with two
-learner processes too, none left behind); a resume
+data-parallel ranks too, none left behind); a resume
 after a kill leaves no duplicate metric rows; every bad input is one line and exit 2."""
 
 from __future__ import annotations
@@ -251,3 +251,19 @@ def test_missing_warm_start_is_one_line_and_a_resume_does_not_need_it(tmp_path: 
     assert r.returncode == 0, r.stderr
     assert json.loads((tmp_path / "w" / "summary.json").read_text())["global_step"] == 256
     assert str(warm / "actor.safetensors") in (tmp_path / "w" / "config.yaml").read_text()
+
+
+@pytest.mark.parametrize("attack", ["deep_spec", "spec_overflow"])
+def test_crafted_warm_start_file_is_one_line(tmp_path: Path, attack: str) -> None:
+    """A hostile actor.init_from (deep nesting, an overflowing number) once escaped as a
+    RecursionError / OverflowError traceback."""
+    from sdhn_policy.weights import load_actor_file
+
+    from .crafted_weights import write_crafted_file
+
+    shipped = Path(__file__).parents[2] / "models" / "maif-solo-mappo" / "actor.safetensors"
+    bad = write_crafted_file(tmp_path / "actor.safetensors", load_actor_file(shipped), attack)
+    r = train(*SMALL, "--set", f"log.root={tmp_path / 'runs'}", "--total-steps", "64",
+              "--set", f"actor.init_from={bad}")
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert "actor.init_from" in one_line(r.stderr), r.stderr

@@ -18,12 +18,11 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
-from pathlib import Path
 
-import sdhn_sim
+from sdhn_sim.data_files import fastdds_profile
 
 SUBNET = "10.213.0"  # /24, private; it only ever exists inside the bridge's closed network
-FASTDDS_PROFILE = Path(sdhn_sim.__file__).resolve().parent / "data" / "fastdds.xml"
+FASTDDS_PROFILE = fastdds_profile()
 _counter = itertools.count()
 
 

@@ -19,6 +19,7 @@ from sdhn_msgs.msg import (
     TeamState,
 )
 from sdhn_sim.envs import make_single_env
+from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.ros import topics
 
 ENV = "maif-tiny"
@@ -67,11 +68,9 @@ def team_stream(episodes: int, max_steps: int, seed: int = 0, version: int = 1) 
             ret += reward
             t += 1
         ep = res.info["episode"]
-        yield Out(topics.EPISODE, EpisodeSummary(
-            env_name=ENV, episode=e, length=ep.length, completed=ep.success,
-            makespan=ep.makespan or 0, episode_return=ep.episode_return,
-            collisions=ep.collisions, formation_error=ep.formation_error, missed_actions=0,
-            policy_version=version, instance_id=instance))
+        result = EpisodeResult.from_stats(ep, env_name=ENV, episode=e, missed_actions=0,
+                                          policy_version=version, instance_id=instance)
+        yield Out(topics.EPISODE, result.to_message(EpisodeSummary()))
 
 
 def weights_message(version: int) -> PolicyWeights:

@@ -6,6 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
+from sdhn_policy.onnx_export import write_onnx
+from sdhn_policy.weights import decode_weights, load_actor_file
 from sdhn_sim.ros import topics
 
 from .deploy_helpers import (
@@ -21,10 +25,19 @@ from .processes import node_processes
 N, SEED, EPISODES, MAX_STEPS = 4, 5, 2, 40
 
 
-def test_ros_deploy_actions_equal_inprocess_greedy_rollout(weights: Path) -> None:
+@pytest.mark.parametrize("backend", ["numpy", "onnx"])
+def test_ros_deploy_actions_equal_inprocess_greedy_rollout(weights: Path, backend: str) -> None:
+    """Either actor backend; the ONNX actors run an exported actor.onnx file as it is."""
     expected = inprocess_greedy_actions(weights, "maif-tiny", SEED, EPISODES, MAX_STEPS)
-    ns = "/sdhn_equal"
-    actors = [actor_cmd(i, N, ns, weights_file=weights, greedy=True) for i in range(N)]
+    ns = f"/sdhn_equal_{backend}"
+    weights_file = weights
+    if backend == "onnx":
+        blob = load_actor_file(weights)
+        spec, tensors = decode_weights(blob)
+        weights_file = write_onnx(weights.with_name("actor.onnx"), spec, tensors, "maif",
+                                  blob.version)
+    actors = [actor_cmd(i, N, ns, weights_file=weights_file, greedy=True, backend=backend)
+              for i in range(N)]
     with observer(N, ns) as (node, seen, spin), node_processes(*actors) as procs:
         actions = [topics.absolute(ns, topics.robot_action(i)) for i in range(N)]
         assert spin(30, lambda: all(node.count_publishers(t) >= 1 for t in actions)), [

@@ -1,6 +1,7 @@
-"""The trainer node's hand-over to its learner process and its accounting, without ROS: raw NumPy
-frames over a pipe (no pickle) survive the trip bit for bit; every step of a stream with lost
-messages is a transition or a counted step drop once flushed; the status file the launcher reads.
+"""The trainer node's hand-over to its learner offload process and its accounting, without ROS:
+raw NumPy frames over a pipe (no pickle) survive the trip bit for bit; every step of a stream with
+lost messages is a transition or a counted step drop once flushed; the status file the launcher
+reads.
 """
 
 from __future__ import annotations
@@ -12,9 +13,10 @@ import numpy as np
 import pytest
 
 from sdhn_bringup.supervisor import node_status_parts
+from sdhn_sim.drops import DropKind
 from sdhn_sim.ros.status import read_statuses, write_status
 from sdhn_train import transitions as tr
-from sdhn_train.learner_process import (
+from sdhn_train.learner_offload import (
     assembled_from,
     recv_message,
     rollout_arrays,
@@ -83,13 +85,13 @@ def test_every_step_is_a_transition_or_a_counted_drop(lose: str) -> None:
     asm.flush()
     d = asm.stats.dropped
     steps = sum(lengths) + 1  # episode 2's step 0 was made too
-    lost = d.get(tr.INCOMPLETE_STEP, 0) + d.get(tr.STEP_NEVER_SEEN, 0)
+    lost = d.get(DropKind.INCOMPLETE_STEP, 0) + d.get(DropKind.STEP_NEVER_SEEN, 0)
     assert asm.pending_records == 0
     assert asm.stats.transitions + lost == steps, (asm.stats, d)
     # one action lost costs transition 7; the whole step 7 costs transition 6 too (its next step
     # never came); episode 2's unanswered step 0 is flushed as incomplete
     assert lost == (2 if lose == "one action" else 3)
-    assert (d.get(tr.STEP_NEVER_SEEN, 0) == 1) == (lose == "whole step")
+    assert (d.get(DropKind.STEP_NEVER_SEEN, 0) == 1) == (lose == "whole step")
 
 
 def test_status_files_feed_the_launchers_status_line(tmp_path: Path,
@@ -98,13 +100,13 @@ def test_status_files_feed_the_launchers_status_line(tmp_path: Path,
     assert write_status("trainer", {"x": 1}) is None  # no supervisor: no file
     monkeypatch.setenv("SDHN_READY_FILE", str(tmp_path / "trainer.ready"))
     write_status("trainer", {"version": 3, "transitions": 120, "transitions_learned": 96,
-                             "dropped": {tr.INCOMPLETE_STEP: 2}})
+                             "dropped": {DropKind.INCOMPLETE_STEP: 2}})
     (tmp_path / "junk.status.json").write_text("{half")
     statuses = read_statuses(tmp_path)
     assert list(statuses) == ["trainer"]
     parts = node_status_parts(statuses)
     assert parts == ["trainer v3 120 transitions (96 learned)",
-                     f"trainer dropped {tr.INCOMPLETE_STEP}: 2"]
+                     f"trainer dropped {DropKind.INCOMPLETE_STEP}: 2"]
 
 
 def test_a_step_the_sim_took_with_a_stay_is_dropped_at_once_even_if_the_action_comes_late() -> None:
@@ -118,9 +120,9 @@ def test_a_step_the_sim_took_with_a_stay_is_dropped_at_once_even_if_the_action_c
     # the state of step 8 says one robot took 'stay' in step 7
     assert asm.add_state(0, 8, np.full(N * 5, 8, np.float32), num_robots=N, team_reward=8.0,
                          terminated=False, truncated=False, missed=1) is None
-    assert asm.stats.dropped == {tr.MISSED_ACTION: 1}, "dropped without waiting to settle"
+    assert asm.stats.dropped == {DropKind.MISSED_ACTION: 1}, "dropped without waiting to settle"
     # the late answer is not what the world executed: refused (the node counts it as stale)
-    assert feed(asm, [late], lengths) == [tr.STALE_STEP]
+    assert feed(asm, [late], lengths) == [DropKind.STALE_STEP]
     feed(asm, msgs[cut + 1:], lengths)
     assert asm.stats.transitions == 11 and asm.pending_records == 0
-    assert asm.stats.dropped == {tr.MISSED_ACTION: 1}
+    assert asm.stats.dropped == {DropKind.MISSED_ACTION: 1}

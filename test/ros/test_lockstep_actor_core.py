@@ -71,9 +71,9 @@ def test_malformed_actions_are_dropped_by_kind() -> None:
     f = sim.reset()
     assert sim.submit(7, 0, 0, 1, 1) == "unknown_robot"
     assert sim.submit(0, 0, 1, 1, 1) == "future_step"
-    assert sim.submit(0, 0, 0, 9, 1) == "out_of_range"
+    assert sim.submit(0, 0, 0, 9, 1) == "action_out_of_range"
     assert sim.submit(0, 0, 0, 1, 1) is None
-    assert sim.submit(0, 0, 0, 2, 1) == "duplicate"
+    assert sim.submit(0, 0, 0, 2, 1) == "duplicate_action"
     for i in range(1, 4):
         sim.submit(i, 0, 0, 0, 1)
     sim.advance()

@@ -15,10 +15,10 @@ from typing import Any
 
 import pytest
 
+from sdhn_sim.drops import DropKind
 from sdhn_sim.recording.reader import Recording, read_recording
 from sdhn_sim.ros import topics
 from sdhn_sim.ros.status import EventReader
-from sdhn_train.transitions import INCOMPLETE_STEP, MISSED_ACTION, STALE_STEP, STEP_NEVER_SEEN
 
 from .deploy_helpers import actor_cmd, inprocess_greedy_actions, sim_cmd, stop_all
 from .netns import Net, closed_network, host_env, netem_unavailable_reason, unavailable_reason
@@ -91,7 +91,8 @@ def test_deploy_across_namespaces_equals_inprocess_greedy_rollout(
 
 
 FAULT_HOSTS = ["sim", "trainer", "recorder", *[f"actor{i}" for i in range(N)]]
-STEPPED = (MISSED_ACTION, INCOMPLETE_STEP, STEP_NEVER_SEEN)  # the trainer's step-level drops
+# the trainer's step-level drops
+STEPPED = (DropKind.MISSED_ACTION, DropKind.INCOMPLETE_STEP, DropKind.STEP_NEVER_SEEN)
 # Netem profiles of issue 18, on both ends of every actor's cable for the whole run.
 NETEM = {"delay-5ms": ["delay", "5ms"], "jitter-20ms-10ms": ["delay", "20ms", "10ms"],
          "loss-5pct": ["loss", "5%"]}
@@ -209,9 +210,9 @@ def _assert_kept(run: FaultRun) -> tuple[int, int, list[Any]]:
     stayed = sum(1 for _, s in states if s.missed_actions)  # steps the sim took with a 'stay'
     assert st["pending"] == 0, st
     assert st["transitions"] + sum(drops.get(k, 0) for k in STEPPED) == steps + 1, st
-    assert drops.get(MISSED_ACTION, 0) == stayed, (drops, stayed)
+    assert drops.get(DropKind.MISSED_ACTION, 0) == stayed, (drops, stayed)
     assert st["transitions"] == steps - stayed, (st, steps, stayed)
-    assert set(drops) <= {*STEPPED, STALE_STEP}, drops
+    assert set(drops) <= {*STEPPED, DropKind.STALE_STEP}, drops
     return steps, missed, states
 
 

@@ -45,10 +45,10 @@ def test_old_team_messages_decode_with_unknown_instance() -> None:
 def test_old_recording_summarises_as_it_did() -> None:
     rows = episode_rows(read_recording(OLD))
     # As printed by the reader of the time: two 12-step episodes, not completed.
-    assert [(r.episode, r.length, r.completed, r.makespan, r.collisions) for r in rows] == [
+    assert [(r.episode, r.length, r.completed, r.makespan, r.collisions) for r, _ in rows] == [
         (0, 12, False, None, 11), (1, 12, False, None, 16)], rows
-    assert [round(r.episode_return, 3) for r in rows] == [-7.508, -10.309]
-    assert all(r.source == "episode" for r in rows)
+    assert [round(r.episode_return, 3) for r, _ in rows] == [-7.508, -10.309]
+    assert all(source == "episode" for _, source in rows)
 
 
 def test_old_recording_renders_on_a_blank_grid_and_says_why() -> None:

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from sdhn_sim.drops import DropKind
 from sdhn_sim.ros.status import EventReader
-from sdhn_train.transitions import INCOMPLETE_STEP, MISSED_ACTION, STEP_NEVER_SEEN
 
 from .deploy_helpers import actor_cmd, sim_cmd
 from .processes import ROS2, node_processes
@@ -64,7 +64,8 @@ def test_every_sim_step_is_a_transition_or_a_counted_drop(
     assert missed > 0, "the kill must cost steps"
     st = json.loads((status / "trainer.status.json").read_text())
     drops = st["dropped"]
-    step_drops = sum(drops.get(k, 0) for k in (MISSED_ACTION, INCOMPLETE_STEP, STEP_NEVER_SEEN))
+    stepped = (DropKind.MISSED_ACTION, DropKind.INCOMPLETE_STEP, DropKind.STEP_NEVER_SEEN)
+    step_drops = sum(drops.get(k, 0) for k in stepped)
     print(f"\n{steps} sim steps ({missed} actions missed, the killed actor's): "
           f"{st['transitions']} transitions, drops {drops}, pending {st['pending']}, "
           f"executor lag max {st['executor_lag_max_ms']} ms, learned {st['transitions_learned']}")
@@ -72,8 +73,10 @@ def test_every_sim_step_is_a_transition_or_a_counted_drop(
     assert st["transitions"] + step_drops == steps, st
     # a step is lost only when the sim had to 'stay' a robot (the killed actor: one per step)
     assert 0 < step_drops <= missed, "only steps with a missed action may be missing"
-    assert set(drops) <= {MISSED_ACTION, INCOMPLETE_STEP, STEP_NEVER_SEEN}, drops
-    assert drops.get(MISSED_ACTION, 0) > 0, "the sim's missed_actions name the killed actor's steps"
-    assert st["transitions_learned"] >= 16, "the learner process trained on the rollouts"
+    assert set(drops) <= set(stepped), drops
+    assert drops.get(DropKind.MISSED_ACTION, 0) > 0, (
+        "the sim's missed_actions name the killed actor's steps")
+    assert st["transitions_learned"] >= 16, "the learner offload process trained on the rollouts"
     assert "Traceback" not in trainer.output, trainer.output
-    assert trainer.output.count("dropped: " + MISSED_ACTION) == 1, "each cause is logged once"
+    assert trainer.output.count("dropped: " + DropKind.MISSED_ACTION) == 1, (
+        "each cause is logged once")

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from sdhn_sim.drops import DropKind
 from sdhn_train import transitions as tr
 from sdhn_train.transitions import TransitionAssembler
 
@@ -144,7 +145,7 @@ def test_missing_robot_action_drops_the_step_and_cuts_the_stream() -> None:
     msgs = [m for m in script(lengths) if not (m.kind == "action" and m.step == 2 and m.robot == 1)]
     asm = assembler(rollout_steps=4, lag=4)
     feed(asm, msgs, lengths)
-    assert asm.stats.dropped == {tr.INCOMPLETE_STEP: 1}
+    assert asm.stats.dropped == {DropKind.INCOMPLETE_STEP: 1}
     assert asm.stats.gaps == 1
     first, second = drain(asm)
     # (0,2) is gone; the transition before it is truncated (bootstraps from obs of step 2)
@@ -183,22 +184,22 @@ def test_duplicates_and_malformed_messages_are_dropped_with_a_reason() -> None:
                              truncated=False)
 
     assert obs(0, obs_of(0, 0, 0)) is None
-    assert obs(0, obs_of(0, 0, 0)) == tr.DUPLICATE_OBS
+    assert obs(0, obs_of(0, 0, 0)) == DropKind.DUPLICATE_OBS
     assert act(1, 2) is None
-    assert act(1, 3) == tr.DUPLICATE_ACTION
+    assert act(1, 3) == DropKind.DUPLICATE_ACTION
     assert state(state_of(0, 0)) is None
-    assert state(state_of(0, 0)) == tr.DUPLICATE_STATE
-    assert obs(1, np.zeros(D + 1, np.float32)) == tr.WRONG_OBS_LENGTH
+    assert state(state_of(0, 0)) == DropKind.DUPLICATE_STATE
+    assert obs(1, np.zeros(D + 1, np.float32)) == DropKind.WRONG_OBS_LENGTH
     bad = obs_of(0, 0, 1)
     bad[2] = np.nan
-    assert obs(1, bad) == tr.NON_FINITE
-    assert obs(N, obs_of(0, 0, 1)) == tr.UNKNOWN_ROBOT
-    assert obs(1, obs_of(0, 0, 1), team=N + 1) == tr.WRONG_TEAM_SIZE
-    assert act(2, A) == tr.ACTION_RANGE
-    assert act(2, 0, log_prob=float("inf")) == tr.BAD_LOG_PROB
-    assert act(2, 0, log_prob=0.5) == tr.BAD_LOG_PROB
-    assert act(2, 0, step=99) == tr.FUTURE_STEP
-    assert state(np.zeros(S - 1, np.float32), step=1) == tr.WRONG_STATE_LENGTH
+    assert obs(1, bad) == DropKind.NON_FINITE_OBS
+    assert obs(N, obs_of(0, 0, 1)) == DropKind.UNKNOWN_ROBOT
+    assert obs(1, obs_of(0, 0, 1), team=N + 1) == DropKind.WRONG_TEAM_SIZE
+    assert act(2, A) == DropKind.ACTION_OUT_OF_RANGE
+    assert act(2, 0, log_prob=float("inf")) == DropKind.BAD_LOG_PROB
+    assert act(2, 0, log_prob=0.5) == DropKind.BAD_LOG_PROB
+    assert act(2, 0, step=99) == DropKind.FUTURE_STEP
+    assert state(np.zeros(S - 1, np.float32), step=1) == DropKind.WRONG_STATE_LENGTH
     # the first (valid) duplicate won
     assert asm._records[(0, 0)].actions[1] == 2
 
@@ -208,7 +209,7 @@ def test_stale_messages_after_assembly_are_dropped_but_answers_to_terminal_steps
     asm = assembler(rollout_steps=100)
     feed(asm, script(lengths), lengths)
     assert asm.stats.transitions == 6
-    assert asm.add_action(0, 1, 0, 0, log_prob=-1.0, version=1) == tr.STALE_STEP
+    assert asm.add_action(0, 1, 0, 0, log_prob=-1.0, version=1) == DropKind.STALE_STEP
     # an actor answering the terminal obs is not an error
     assert asm.add_action(0, 3, 0, 0, log_prob=-1.0, version=1) is None
 

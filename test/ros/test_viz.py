@@ -6,7 +6,9 @@ from __future__ import annotations
 import array
 import asyncio
 import base64
+import contextlib
 import json
+import os
 import re
 import socket
 import struct
@@ -14,6 +16,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,8 +37,8 @@ from .processes import ROS2, NodeProcess, node_processes
 pytestmark = pytest.mark.ros
 
 ENV = "maif-tiny"
-# The SDK 0.30.3 server accepts only foxglove.sdk.v1 (a client offering foxglove.websocket.v1
-# alone gets HTTP 400); offer both, as the Foxglove app does.
+# The viz server (sdhn_sim.viz.server) speaks foxglove.websocket.v1 and answers to
+# foxglove.sdk.v1 too; offer both, as the Foxglove app does.
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 
 
@@ -191,7 +194,7 @@ def test_viz_serves_robots_at_the_state_cells_and_survives_bad_input(team: TeamP
         team.wait_matched()
         team.state.publish(team.team_state(0, size=7))  # wrong size
         team.state.publish(team.team_state(0, env_name="maif-nope"))  # unknown env
-        assert viz.wait_for_line("dropped state: wrong_size", 10), viz.output
+        assert viz.wait_for_line("dropped state: wrong_state_length", 10), viz.output
 
         async def watch() -> tuple[Any, Any, Any, dict[str, Any]]:
             async with websockets.connect(
@@ -230,7 +233,7 @@ def test_viz_serves_robots_at_the_state_cells_and_survives_bad_input(team: TeamP
     assert (image.height, image.width, image.encoding) == (4 * 12, 2 * 12, "rgb8")
     assert metrics["env"] == ENV and metrics["dropped"] == 2, metrics
     assert code == 0, viz.output
-    assert "state/unknown_env=1" in viz.output and "state/wrong_size=1" in viz.output
+    assert "state/unknown_env=1" in viz.output and "state/wrong_state_length=1" in viz.output
 
 
 def test_viz_encodes_nothing_without_a_client(team: TeamPublisher) -> None:
@@ -247,13 +250,18 @@ def test_viz_encodes_nothing_without_a_client(team: TeamPublisher) -> None:
     assert "served 0 encoded messages" in viz.output, viz.output
 
 
-@pytest.mark.parametrize("case", ["port_in_use", "unknown_env"])
+CONFIG_ERRORS = {"port_in_use": "port:", "unknown_env": "env:",
+                 "foreign_host": "host:"}  # an address not this machine's was named as port
+
+
+@pytest.mark.parametrize("case", list(CONFIG_ERRORS))
 def test_viz_config_errors_exit_2_with_one_line(case: str) -> None:
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
         port = busy.getsockname()[1]
-        params = [f"port:={port}"] if case == "port_in_use" else ["env:=maif-nope"]
+        params = {"port_in_use": [f"port:={port}"], "unknown_env": ["env:=maif-nope"],
+                  "foreign_host": ["host:=203.0.113.7", "port:=0"]}[case]
         command = [*ROS2, "run", "sdhn_sim", "viz", "--ros-args"]
         for p in params:
             command += ["-p", p]
@@ -263,7 +271,9 @@ def test_viz_config_errors_exit_2_with_one_line(case: str) -> None:
     errors = [line for line in viz.lines if "error" in line]
     assert viz.proc.returncode == 2, viz.output
     assert len(errors) == 1, viz.output
-    assert (str(port) if case == "port_in_use" else "env:") in errors[0], errors[0]
+    assert CONFIG_ERRORS[case] in errors[0], errors[0]
+    if case == "port_in_use":
+        assert str(port) in errors[0], errors[0]
 
 
 def test_viz_limits_connections_and_logs_who_connects() -> None:
@@ -293,4 +303,34 @@ def test_viz_limits_connections_and_logs_who_connects() -> None:
     finally:
         for s in socks:
             s.close()
+        assert node.stop() == 0, node.output
+
+
+def listening_tcp_ports(pid: int) -> set[int]:
+    """TCP ports the process ``pid`` listens on (its socket inodes in /proc/net/tcp{,6})."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        with contextlib.suppress(OSError):
+            target = os.readlink(fd)
+            if target.startswith("socket:["):
+                inodes.add(target[8:-1])
+    ports = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with contextlib.suppress(OSError):
+            for line in Path(table).read_text().splitlines()[1:]:
+                fields = line.split()
+                if fields[3] == "0A" and fields[9] in inodes:  # state LISTEN
+                    ports.add(int(fields[1].rsplit(":", 1)[1], 16))
+    return ports
+
+
+def test_viz_listens_only_where_its_limit_and_log_apply() -> None:
+    """The SDK server used to listen on a loopback port of its own behind the gate: a local
+    client connected there past max_clients, unlogged. One listening socket, the served one."""
+    node = NodeProcess(viz_command("max_clients:=1"))
+    try:
+        port = served_port(node)
+        ports = listening_tcp_ports(node.proc.pid)
+        assert ports == {port}, f"viz listens on {sorted(ports)}, serves only {port}"
+    finally:
         assert node.stop() == 0, node.output

@@ -136,11 +136,11 @@ def test_trail_restarts_with_a_new_episode() -> None:
     "change,kind",
     [
         ({"env_name": "maif-nope"}, "unknown_env"),
-        ({"num_robots": 5}, "wrong_size"),
-        ({"state": array.array("f", [0.0] * 10)}, "wrong_size"),
+        ({"num_robots": 5}, "wrong_team_size"),
+        ({"state": array.array("f", [0.0] * 10)}, "wrong_state_length"),
         ({"positions": [0, 0, 1, 1]}, "wrong_size"),
         ({"positions": [0, 0, 1, 1, 2, 2, 12, 3]}, "out_of_grid"),
-        ({"state": array.array("f", [math.nan] * 228)}, "not_finite"),
+        ({"state": array.array("f", [math.nan] * 228)}, "non_finite_state"),
     ],
     ids=lambda v: v if isinstance(v, str) else ",".join(v),
 )

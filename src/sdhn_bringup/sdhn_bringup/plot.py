@@ -14,10 +14,13 @@ import json
 import sys
 from pathlib import Path
 
+from sdhn_sim.episode import EpisodeResult
 
-def read_episodes(run_dir: Path) -> list[dict[str, str]]:
+
+def read_episodes(run_dir: Path) -> list[EpisodeResult]:
     path = run_dir / "episodes.csv"
-    return list(csv.DictReader(path.read_text().splitlines())) if path.exists() else []
+    rows = csv.DictReader(path.read_text().splitlines()) if path.exists() else []
+    return [EpisodeResult.from_csv_row(row) for row in rows]
 
 
 def reward_name(run_dir: Path) -> str:
@@ -41,8 +44,8 @@ def read_train_curve(train_run: Path,
         steps = 0
         points = []
         for e in episodes:
-            steps += int(e["length"])
-            points.append((steps, float(e["return"])))
+            steps += e.length
+            points.append((steps, e.episode_return))
         return points
     path = train_run / "metrics.csv"
     if not path.exists():
@@ -61,9 +64,9 @@ def plot_run(run_dir: Path, train_run: Path | None = None, out: Path | None = No
     curve = read_train_curve(train_run) if train_run is not None else []
     panels = 3 if curve else 2
     fig, axes = plt.subplots(1, panels, figsize=(4.2 * panels, 3.4))
-    ks = [int(e["episode"]) for e in episodes]
-    lengths = [int(e["length"]) for e in episodes]
-    done = [e["makespan"] != "NC" for e in episodes]
+    ks = [e.episode for e in episodes]
+    lengths = [e.length for e in episodes]
+    done = [e.completed for e in episodes]
     colors = ["tab:green" if d else "tab:gray" for d in done]
     axes[0].bar(ks, lengths, color=colors)
     for k, length, d in zip(ks, lengths, done, strict=True):
@@ -71,7 +74,7 @@ def plot_run(run_dir: Path, train_run: Path | None = None, out: Path | None = No
             axes[0].text(k, length, "NC", ha="center", va="bottom", fontsize=8)
     axes[0].set(title=f"deployed: makespan, success {sum(done)}/{len(done)} (grey = NC)",
                 xlabel="episode", ylabel="steps")
-    axes[1].bar(ks, [float(e["return"]) for e in episodes], color="tab:blue")
+    axes[1].bar(ks, [e.episode_return for e in episodes], color="tab:blue")
     axes[1].set(title=f"deployed: return ({reward_name(run_dir)} reward)", xlabel="episode",
                 ylabel="team return")
     if curve:

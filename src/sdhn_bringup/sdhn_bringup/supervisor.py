@@ -55,14 +55,15 @@ from typing import IO, Any
 
 import yaml
 
+from sdhn_sim.data_files import fastdds_profile
 from sdhn_sim.envs.registry import env_names, team_size
+from sdhn_sim.episode import CSV_FIELDS, EpisodeResult
 from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.overrides import OverrideError, set_field
 from sdhn_sim.ros import topics
 from sdhn_sim.ros.status import READY_ENV, EventReader, read_statuses
 
 MODES = ("deploy", "train")
-FASTDDS_PROFILE = Path(__file__).resolve().parent.parent / "data" / "fastdds.xml"
 RESTART_POLICIES = ("never", "on-failure")
 
 
@@ -109,17 +110,27 @@ class LaunchConfig:
     hosts: dict[str, str] = field(default_factory=dict)  # child name -> network namespace
 
 
+WEIGHTS_ALLOWED = ("an actor .safetensors file (with its .json sidecar) or a run directory "
+                   "holding actor.safetensors")
+
+
 def resolve_weights(path: str) -> Path:
-    """A weights file from a file path or a run directory (actor.safetensors in it)."""
+    """A weights file from a file path or a run directory (its top-level actor.safetensors).
+
+    Only that one name in a directory: any other pick (the newest, the last in sort order,
+    anywhere below) could silently deploy a different run's or an old checkpoint's actor."""
     p = Path(path)
     if p.is_dir():
-        for candidate in (p / "actor.safetensors", *sorted(p.glob("**/actor*.safetensors"))[-1:]):
-            if candidate.is_file():
-                return candidate
-        raise LaunchConfigError(f"weights: no actor*.safetensors in directory {p}")
+        candidate = p / "actor.safetensors"
+        if candidate.is_file():
+            return candidate
+        found = sorted(str(q.relative_to(p)) for q in p.glob("**/*.safetensors"))
+        hint = f" (it holds {', '.join(found[:3])}{', ...' if len(found) > 3 else ''}: " \
+               "name the file)" if found else ""
+        raise LaunchConfigError(f"weights: directory {p} has no actor.safetensors{hint}; "
+                                f"allowed: {WEIGHTS_ALLOWED}")
     if not p.is_file():
-        raise LaunchConfigError(f"weights: {p} does not exist; allowed: an actor .safetensors "
-                                "file (with its .json sidecar) or a run directory holding one")
+        raise LaunchConfigError(f"weights: {p} does not exist; allowed: {WEIGHTS_ALLOWED}")
     return p
 
 
@@ -141,6 +152,11 @@ def check_weights_fit(path: Path, env: str) -> None:
         ("team size", spec.num_robots if spec.use_robot_id else n, n)) if have != want]
     if wrong:
         raise LaunchConfigError(f"weights: {path} does not fit {env}: " + ", ".join(wrong))
+
+
+NETNS_DIR = Path("/run/netns")
+NETNS_NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+"""A name as ``ip netns`` lists it (a file in /run/netns: never a path or '.'/'..')."""
 
 
 def validate(cfg: LaunchConfig) -> None:
@@ -177,7 +193,8 @@ def validate(cfg: LaunchConfig) -> None:
     for child, netns in cfg.hosts.items():
         if child not in names:
             raise LaunchConfigError(f"hosts.{child}: no such child; allowed: {', '.join(names)}")
-        if not (Path("/run/netns") / str(netns)).exists():
+        if not NETNS_NAME.fullmatch(netns) or netns in (".", "..") or not (
+                NETNS_DIR / netns).is_file():
             raise LaunchConfigError(f"hosts.{child}: no network namespace {netns!r}; allowed: "
                                     "one listed by `ip netns list`")
     for key, value in cfg.trainer.items():
@@ -272,7 +289,7 @@ def actor_node(ns: str, robot: int) -> str:
 
 def node_parameters(cfg: LaunchConfig) -> NodeParameters:
     """The parameters of every node of one run, by node full name, in start order."""
-    ns, run = topics.check_team_ns(cfg.team_ns), Path(cfg.run_dir).resolve()
+    ns, run = cfg.team_ns, Path(cfg.run_dir).resolve()  # ns checked by validate()
     nodes: NodeParameters = {}
     if cfg.recorder:
         nodes[topics.absolute(ns, "recorder")] = {
@@ -335,7 +352,7 @@ def _entry_package(script: Path) -> str | None:
 def graph(cfg: LaunchConfig) -> list[ChildSpec]:
     """The children of one run, in start order; each reads its parameters from the run's
     parameters file (``node_parameters``, written by ``Launcher.write_params``)."""
-    ns, run = topics.check_team_ns(cfg.team_ns), Path(cfg.run_dir).resolve()
+    ns, run = cfg.team_ns, Path(cfg.run_dir).resolve()  # ns checked by validate()
     params = ["--params-file", str(run / PARAMS_FILE)]
     children: list[ChildSpec] = []
     if cfg.recorder:
@@ -419,21 +436,6 @@ class Child:
             self.proc.send_signal(sig)
 
 
-# episodes.csv: the outcome first (success, makespan), the return second, then the rest.
-CSV_FIELDS = ["episode", "completed", "makespan", "return", "length", "collisions",
-              "missed_actions", "policy_version", "instance_id", "wall_s"]
-
-
-def episode_row(event: dict[str, Any], wall_s: float) -> dict[str, Any]:
-    """One episodes.csv row from the simulator's episode event (an EpisodeResult as JSON)."""
-    completed = bool(event.get("completed"))
-    return {"episode": int(event["episode"]), "completed": completed,
-            "makespan": event.get("makespan") if completed else "NC",
-            "return": f"{float(event['episode_return']):.3f}", "length": int(event["length"]),
-            "collisions": int(event.get("collisions", 0)),
-            "missed_actions": int(event.get("missed_actions", 0)),
-            "policy_version": int(event.get("policy_version", 0)),
-            "instance_id": int(event.get("instance_id", -1)), "wall_s": f"{wall_s:.2f}"}
 
 
 def node_status_parts(statuses: dict[str, dict[str, Any]]) -> list[str]:
@@ -472,7 +474,7 @@ class Launcher:
         env["PYTHONUNBUFFERED"] = "1"
         env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
         # Faster participant announcements, so a restarted child matches the others in < 1 s.
-        env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
+        env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(fastdds_profile()))
         if cfg.hosts:
             # Separate hosts: data must cross the network (on one machine Fast DDS would pass it
             # through shared memory, around the namespaces), and discovery must reach the subnet.
@@ -522,7 +524,7 @@ class Launcher:
         in train mode the one a restarted trainer reads after it."""
         files = {PARAMS_FILE: node_parameters(self.cfg)}
         if self.cfg.mode == "train":
-            trainer = topics.absolute(topics.check_team_ns(self.cfg.team_ns), "trainer")
+            trainer = topics.absolute(self.cfg.team_ns, "trainer")
             files[RESUME_FILE] = {trainer: {RESUME_PARAMETER: True}}
         for name, nodes in files.items():
             tmp = self.run_dir / f".{name}.{os.getpid()}.w.tmp"  # sdhn_sim.litter
@@ -539,7 +541,7 @@ class Launcher:
                 self.position = (int(event["episode"]), int(event["step"]))
                 self.step_rate = float(event["steps_per_s"])
             elif kind == "episode":
-                row = episode_row(event, time.monotonic() - self.t0)
+                row = EpisodeResult.from_event(event).to_csv_row(time.monotonic() - self.t0)
                 self.episodes.append(row)
                 self.steps_done += row["length"]
                 if self.t_steps0 is not None:
@@ -690,6 +692,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         launcher = Launcher(cfg)
         launcher.write_config()
+        launcher.write_params()
     except OSError as e:
         if args.debug:
             raise

@@ -21,10 +21,36 @@ import numpy as np
 import numpy.typing as npt
 
 from sdhn_policy.actor_runtime import ActorRuntime
-from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError
+from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
+from sdhn_sim.drops import DropKind
 
 MAX_WEIGHTS_BYTES = 64 * 1024 * 1024
 """Largest weights payload an actor accepts (the actor itself is ~100 kB)."""
+
+BACKENDS = ("numpy", "onnx")
+
+
+def runtime_class(backend: str) -> type[ActorRuntime]:
+    """The runtime that computes the policy: ``numpy`` (default) or ``onnx`` (onnxruntime, imported
+    only when chosen, so a NumPy actor never loads it). Both give the same actions (tested)."""
+    if backend == "numpy":
+        return ActorRuntime
+    if backend == "onnx":
+        from sdhn_policy.onnx_runtime import OnnxActorRuntime
+        return OnnxActorRuntime
+    raise ValueError(f"backend: got {backend!r}; allowed: {', '.join(BACKENDS)}")
+
+
+def runtime_from_file(backend: str, path: str) -> ActorRuntime:
+    """The runtime of a weights file: ``actor.safetensors`` on either backend, or an exported
+    ``actor.onnx`` as it is (backend ``onnx`` only). WeightsError if the file is unusable."""
+    cls = runtime_class(backend)
+    if path.endswith(".onnx"):
+        if backend != "onnx":
+            raise WeightsError(f"an .onnx file runs on backend 'onnx', not {backend!r}")
+        from sdhn_policy.onnx_runtime import OnnxActorRuntime
+        return OnnxActorRuntime.from_onnx_file(path)
+    return cls.from_file(path)
 
 
 @dataclass(frozen=True)
@@ -36,7 +62,7 @@ class Decision:
 
 @dataclass(frozen=True)
 class Drop:
-    kind: str  # e.g. "wrong_obs_length"; counted per kind
+    kind: DropKind  # counted per kind
     reason: str  # human-readable detail for the log
 
 
@@ -44,8 +70,10 @@ class ActorCore:
     """The per-robot policy state machine (weights, GRU hidden state, RNG)."""
 
     def __init__(self, robot_id: int, num_robots: int, greedy: bool, seed: int,
-                 runtime: ActorRuntime | None = None) -> None:
+                 runtime: ActorRuntime | None = None, *,
+                 runtime_cls: type[ActorRuntime] = ActorRuntime) -> None:
         self.robot_id = robot_id
+        self.runtime_cls = runtime_cls  # builds the runtime of every weights message
         self.num_robots = num_robots
         self.greedy = greedy
         self.rng = np.random.default_rng([seed, robot_id])
@@ -80,7 +108,12 @@ class ActorCore:
         if len(payload) > MAX_WEIGHTS_BYTES:
             raise OversizedPayloadError(
                 f"oversized payload: {len(payload)} bytes > {MAX_WEIGHTS_BYTES}")
-        rt = ActorRuntime.from_bytes(fmt, version, payload, sha256)
+        try:
+            rt = self.runtime_cls.from_bytes(fmt, version, payload, sha256)
+        except WeightsError:
+            raise
+        except Exception as e:  # whatever a crafted payload provokes: a rejection, not a crash
+            raise WeightsError(f"weights rejected ({type(e).__name__}): {str(e)[:300]}") from e
         self._check(rt)
         self._pending = rt
         return True
@@ -99,17 +132,17 @@ class ActorCore:
         if done:
             return None
         if robot_id != self.robot_id or num_robots != self.num_robots:
-            return Drop("wrong_robot", f"observation for robot {robot_id} of {num_robots}, "
+            return Drop(DropKind.WRONG_ROBOT, f"observation for robot {robot_id} of {num_robots}, "
                         f"this is robot {self.robot_id} of {self.num_robots}")
         self._swap()  # between steps: the previous step is answered, this one not yet started
         if self.runtime is None or self.hidden is None:
-            return Drop("no_weights", "no policy weights yet (weights_file empty and nothing "
-                        "received on the weights topic)")
+            return Drop(DropKind.NO_WEIGHTS, "no policy weights yet (weights_file empty and "
+                        "nothing received on the weights topic)")
         if obs.shape != (self.runtime.spec.obs_size,):
-            return Drop("wrong_obs_length", f"observation has length {obs.size}, the policy "
+            return Drop(DropKind.WRONG_OBS_LENGTH, f"observation has length {obs.size}, the policy "
                         f"expects {self.runtime.spec.obs_size}")
         if not np.isfinite(obs).all():
-            return Drop("non_finite_obs", "observation contains NaN or Inf")
+            return Drop(DropKind.NON_FINITE_OBS, "observation contains NaN or Inf")
         order = self._order(episode, step)
         if order is not None:
             return order
@@ -134,9 +167,9 @@ class ActorCore:
         if self.episode is None or self.last_step is None or step == 0:
             return None
         if (episode, step) <= (self.episode, self.last_step):
-            return Drop("stale_step", f"episode {episode} step {step} is not after the last "
+            return Drop(DropKind.STALE_STEP, f"episode {episode} step {step} is not after the last "
                         f"answered episode {self.episode} step {self.last_step}")
         if episode != self.episode or step > self.last_step + 1:
-            return Drop("future_step", f"episode {episode} step {step} skips ahead of the last "
-                        f"answered episode {self.episode} step {self.last_step}")
+            return Drop(DropKind.FUTURE_STEP, f"episode {episode} step {step} skips ahead of the "
+                        f"last answered episode {self.episode} step {self.last_step}")
         return None

@@ -23,9 +23,9 @@ from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
-from sdhn_policy.actor_core import ActorCore, Decision, Drop
-from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
 from sdhn_policy.weights import WeightsError
+from sdhn_sim.drops import DropKind
 from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.params import boolean, declare, integer, string
 from sdhn_sim.ros.qos import LATCHED, STEP
@@ -35,10 +35,12 @@ PARAMETERS = {
     "team_ns": (topics.DEFAULT_TEAM_NS, string(f"team namespace; {topics.TEAM_NS_RULE}")),
     "robot_id": (0, integer("this robot's id, 0 <= robot_id < num_robots", 0)),
     "num_robots": (10, integer("team size N", 1)),
-    "weights_file": ("", string("actor .safetensors file (with its .json sidecar); '' = wait "
-                                "for the weights topic")),
+    "weights_file": ("", string("actor .safetensors file (with its .json sidecar), or an "
+                                "exported actor.onnx (backend onnx); '' = wait for the weights "
+                                "topic")),
     "greedy": (False, boolean("argmax actions instead of sampling")),
     "seed": (0, integer("seed of the action sampler", 0)),
+    "backend": ("numpy", string("policy runtime: 'numpy' or 'onnx' (onnxruntime); same actions")),
 }
 FAIL_AFTER = 3  # wrong-length observations before any answer that end the actor
 WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait for "
@@ -50,16 +52,18 @@ class ActorNode(Node):
         super().__init__("actor", context=context)
         p = declare(self, PARAMETERS)
         robot_id, num_robots, weights_file = p["robot_id"], p["num_robots"], p["weights_file"]
-        try:
-            self.ns = topics.check_team_ns(p["team_ns"])
-        except topics.NamespaceError as e:
-            raise ConfigError(str(e)) from None
+        self.ns = topics.check_team_ns(p["team_ns"])
         if robot_id >= num_robots:
             raise ConfigError(f"robot_id: got {robot_id}; allowed: 0 <= robot_id < num_robots "
                               f"({num_robots})")
         try:
-            runtime = ActorRuntime.from_file(weights_file) if weights_file else None
-            self.core = ActorCore(robot_id, num_robots, p["greedy"], p["seed"], runtime)
+            runtime_cls = runtime_class(p["backend"])
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+        try:
+            runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
+            self.core = ActorCore(robot_id, num_robots, p["greedy"], p["seed"], runtime,
+                                  runtime_cls=runtime_cls)
         except WeightsError as e:
             raise ConfigError(f"weights_file: {weights_file}: {e.reason}; {WEIGHTS_ALLOWED}") from e
         self.robot_id = robot_id
@@ -77,6 +81,7 @@ class ActorNode(Node):
             self.open_step_topics()
         source = weights_file or f"waiting for {weights_topic}"
         self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
+                               f"backend={p['backend']}, "
                                f"weights: {source} (version {self.core.version})")
 
     def open_step_topics(self) -> None:
@@ -106,7 +111,7 @@ class ActorNode(Node):
         try:
             msg = cdr.read_observation(data)
         except cdr.CdrError as e:
-            self.drop("undecodable", f"observation: {e}")
+            self.drop(DropKind.UNDECODABLE, f"observation: {e}")
             return
         out = self.core.on_obs(msg.episode, msg.step, msg.robot_id, msg.num_robots, msg.obs,
                                done=msg.terminated or msg.truncated)
@@ -126,7 +131,7 @@ class ActorNode(Node):
             # Weights that do not fit the environment: the simulator re-sends step 0, every
             # copy the wrong length. One stray message after acting is only dropped (hostile
             # input must not end an actor); FAIL_AFTER of them before any answer end it (exit 1).
-            if out.kind == "wrong_obs_length" and not self.answered:
+            if out.kind == DropKind.WRONG_OBS_LENGTH and not self.answered:
                 self.unfit += 1
                 if self.unfit >= FAIL_AFTER:
                     self.failed_reason = (f"robot {self.robot_id} cannot act: {out.reason}, "

@@ -53,7 +53,7 @@ def run_actor(rt: ActorRuntime, env: MaifEnv, seed: int) -> list[EpisodeStats]:
 def summarise(eps: list[EpisodeStats]) -> dict[str, Any]:
     """Success rate, makespan over completed episodes ("NC" when none), return, collisions."""
     done = [e.makespan for e in eps if e.makespan is not None]
-    return {"success_rate": float(np.mean([e.success for e in eps])),
+    return {"success_rate": float(np.mean([e.completed for e in eps])),
             "makespan": round(float(np.mean(done)), 2) if done else "NC",
             "return": round(float(np.mean([e.episode_return for e in eps])), 2),
             "collisions": round(float(np.mean([e.collisions for e in eps])), 2)}

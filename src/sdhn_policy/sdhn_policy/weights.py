@@ -32,6 +32,8 @@ from safetensors.numpy import load as st_load
 from safetensors.numpy import save as st_save
 
 from sdhn_policy.features import check_transform, feature_size
+from sdhn_sim import bounded_json
+from sdhn_sim.drops import DropKind
 from sdhn_sim.litter import clean_stale_tmp
 
 ACTOR_FORMAT = "sdhn-actor/2"
@@ -42,6 +44,11 @@ RETIRED_FORMATS = {
                     "retrain, or export again with this version",
 }
 
+MAX_SPEC_SIZE = 1 << 24
+"""Largest size a spec may name (observation length, widths, robots): a float32 tensor with
+more columns than this cannot fit in any payload an actor accepts."""
+MAX_HIDDEN_LAYERS = 64
+
 Tensors = dict[str, npt.NDArray[np.float32]]
 
 
@@ -49,7 +56,7 @@ class WeightsError(ValueError):
     """A weights payload or file was rejected; ``reason`` says why, ``kind`` names the class of
     fault (an actor counts and logs rejections once per kind)."""
 
-    kind = "bad_weights"
+    kind = DropKind.BAD_WEIGHTS
 
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
@@ -59,31 +66,31 @@ class WeightsError(ValueError):
 class UnknownFormatError(WeightsError):
     """The message names a weights format this runtime does not read."""
 
-    kind = "unknown_format"
+    kind = DropKind.UNKNOWN_FORMAT
 
 
 class Sha256MismatchError(WeightsError):
     """The payload does not hash to the sha256 the message carries."""
 
-    kind = "bad_sha256"
+    kind = DropKind.BAD_SHA256
 
 
 class BadTensorsError(WeightsError):
     """The payload is no valid safetensors blob, or its tensors do not match the spec."""
 
-    kind = "bad_tensors"
+    kind = DropKind.BAD_TENSORS
 
 
 class OversizedPayloadError(WeightsError):
     """The payload is larger than an actor accepts."""
 
-    kind = "oversized_payload"
+    kind = DropKind.OVERSIZED_PAYLOAD
 
 
 class IncompatibleWeightsError(WeightsError):
     """Valid weights that this actor cannot use (e.g. trained for another team size)."""
 
-    kind = "incompatible_weights"
+    kind = DropKind.INCOMPATIBLE_WEIGHTS
 
 
 @dataclass(frozen=True)
@@ -123,12 +130,17 @@ class ActorSpec:
                 num_robots=int(d["num_robots"]),
                 features=str(d["features"]),
             )
-        except (KeyError, TypeError, ValueError) as e:
-            raise WeightsError(f"actor spec metadata is malformed: {e!r}") from e
+        except (KeyError, TypeError, ValueError, OverflowError) as e:
+            raise WeightsError(f"actor spec metadata is malformed: {_short(repr(e))}") from e
         spec.check()
         return spec
 
     def check(self) -> None:
+        sizes = (self.obs_size, self.num_actions, self.gru_hidden, self.num_robots,
+                 *self.hidden_sizes)
+        if len(self.hidden_sizes) > MAX_HIDDEN_LAYERS or any(s > MAX_SPEC_SIZE for s in sizes):
+            raise WeightsError(f"actor spec is too large (at most {MAX_HIDDEN_LAYERS} hidden "
+                               f"layers, sizes up to {MAX_SPEC_SIZE}): {_short(str(self))}")
         if self.obs_size < 1 or self.num_actions < 1 or self.gru_hidden < 1:
             raise WeightsError(f"actor spec has a non-positive size: {self}")
         if any(h < 1 for h in self.hidden_sizes):
@@ -168,6 +180,11 @@ class ActorWeights:
     sha256: str
 
 
+def _short(text: str, limit: int = 300) -> str:
+    """``text`` cut to ``limit`` characters: a crafted payload must not make a log line huge."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
 def sha256_hex(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
@@ -178,9 +195,8 @@ def validate_tensors(spec: ActorSpec, tensors: dict[str, np.ndarray]) -> Tensors
     missing = sorted(set(expected) - set(tensors))
     extra = sorted(set(tensors) - set(expected))
     if missing or extra:
-        raise BadTensorsError(
-            f"tensor names do not match the spec: missing {missing}, unexpected {extra}"
-        )
+        raise BadTensorsError(_short(
+            f"tensor names do not match the spec: missing {missing}, unexpected {extra}"))
     out: Tensors = {}
     for name, shape in expected.items():
         a = tensors[name]
@@ -231,9 +247,9 @@ def _read_metadata(payload: bytes) -> dict[str, str]:
     if n <= 0 or 8 + n > len(payload):
         raise WeightsError("payload header length is out of range")
     try:
-        header = json.loads(payload[8 : 8 + n])
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise WeightsError(f"payload header is not JSON: {e}") from e
+        header = bounded_json.loads(payload[8 : 8 + n])
+    except bounded_json.JsonInputError as e:
+        raise WeightsError(f"payload header rejected: {_short(str(e))}") from e
     meta = header.get("__metadata__") if isinstance(header, dict) else None
     if not isinstance(meta, dict):
         raise WeightsError("payload has no metadata (is it an sdhn actor blob?)")
@@ -241,13 +257,27 @@ def _read_metadata(payload: bytes) -> dict[str, str]:
 
 
 def decode_actor(fmt: str, version: int, payload: bytes, sha256: str) -> tuple[ActorSpec, Tensors]:
-    """Validate the bytes form and return (spec, tensors). Raises WeightsError on any mismatch."""
+    """Validate the bytes form and return (spec, tensors). Raises WeightsError on any mismatch,
+    and on anything else that goes wrong while decoding: a payload is data from the network, so
+    no exception it provokes may escape the caller's drop-and-count path (and take a node down).
+    """
+    try:
+        return _decode_actor(fmt, version, payload, sha256)
+    except WeightsError:
+        raise
+    except Exception as e:  # a case the checks above missed: still a rejected payload
+        raise WeightsError(f"payload rejected ({type(e).__name__}): {_short(str(e))}") from e
+
+
+def _decode_actor(fmt: str, version: int, payload: bytes, sha256: str
+                  ) -> tuple[ActorSpec, Tensors]:
     if fmt in RETIRED_FORMATS:
         raise UnknownFormatError(f"weights format {fmt!r} is no longer accepted: "
                                  f"{RETIRED_FORMATS[fmt]} (this runtime reads {ACTOR_FORMAT!r})")
     if fmt != ACTOR_FORMAT:
         raise UnknownFormatError(
-            f"unknown weights format {fmt!r}; this runtime reads {ACTOR_FORMAT!r}")
+            f"unknown weights format {_short(repr(fmt), 80)}; this runtime reads "
+            f"{ACTOR_FORMAT!r}")
     payload = bytes(payload)
     actual = sha256_hex(payload)
     if actual != sha256.lower():
@@ -255,15 +285,20 @@ def decode_actor(fmt: str, version: int, payload: bytes, sha256: str) -> tuple[A
             f"sha256 mismatch: message says {sha256}, payload hashes to {actual}")
     meta = _read_metadata(payload)
     if meta.get("format") != ACTOR_FORMAT:
-        raise WeightsError(
-            f"payload metadata format is {meta.get('format')!r}, not {ACTOR_FORMAT!r}"
-        )
+        raise WeightsError(f"payload metadata format is {_short(repr(meta.get('format')), 80)}, "
+                           f"not {ACTOR_FORMAT!r}")
     if meta.get("version") != str(int(version)):
-        raise WeightsError(f"payload version {meta.get('version')} != message version {version}")
+        raise WeightsError(f"payload version {_short(str(meta.get('version')), 40)} != message "
+                           f"version {version}")
+    if "spec" not in meta:
+        raise WeightsError("payload metadata has no spec")
     try:
-        spec = ActorSpec.from_json(json.loads(meta["spec"]))
-    except (KeyError, json.JSONDecodeError) as e:
-        raise WeightsError(f"payload metadata has no valid spec: {e!r}") from e
+        spec_json = bounded_json.loads(meta["spec"])
+    except bounded_json.JsonInputError as e:
+        raise WeightsError(f"payload metadata spec rejected: {_short(str(e))}") from e
+    if not isinstance(spec_json, dict):
+        raise WeightsError("payload metadata spec is not a JSON object")
+    spec = ActorSpec.from_json(spec_json)
     try:
         tensors = st_load(payload)
     except Exception as e:  # safetensors raises its own error type for corrupt blobs
@@ -333,7 +368,7 @@ def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
     """Read and validate a weights file written by :func:`save_actor_file`."""
     path = Path(path)
     try:
-        side = json.loads(sidecar_path(path).read_text())
+        side = bounded_json.loads(sidecar_path(path).read_bytes())
         if not isinstance(side, dict):
             raise TypeError(f"expected a JSON object, got {type(side).__name__}")
         payload = path.read_bytes()
@@ -354,7 +389,8 @@ def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
         raise WeightsError(f"{e.filename} is a directory, not a weights file") from e
     except OSError as e:
         raise WeightsError(f"cannot read {e.filename}: {e.strerror}") from e
-    except (KeyError, TypeError, ValueError) as e:
-        raise WeightsError(f"weights sidecar {sidecar_path(path)} is malformed: {e!r}") from e
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
+        raise WeightsError(f"weights sidecar {sidecar_path(path)} is malformed: "
+                           f"{_short(repr(e))}") from e
     decode_weights(blob)
     return blob

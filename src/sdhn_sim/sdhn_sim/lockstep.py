@@ -24,9 +24,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from sdhn_sim.drops import DropKind
 from sdhn_sim.envs import make_single_env
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.envs.single import SingleEnv
+from sdhn_sim.episode import EpisodeResult
 
 STAY = 0
 
@@ -94,23 +96,6 @@ class Frame:
         return self.terminated or self.truncated
 
 
-@dataclass(frozen=True)
-class EpisodeResult:
-    """Metrics of one finished episode (the fields of ``sdhn_msgs/EpisodeSummary``)."""
-
-    env_name: str
-    episode: int
-    length: int
-    completed: bool
-    makespan: int | None  # None = not completed (NC)
-    episode_return: float
-    collisions: int
-    formation_error: float
-    missed_actions: int
-    policy_version: int
-    instance_id: int  # as Frame.instance_id
-
-
 def _positions(env: SingleEnv) -> npt.NDArray[np.int32]:
     return np.asarray(env.positions, dtype=np.int32).reshape(-1, 2)
 
@@ -167,18 +152,18 @@ class LockstepSim:
         self._got[:] = False
 
     def submit(self, robot_id: int, episode: int, step: int, action: int,
-               version: int) -> str | None:
+               version: int) -> DropKind | None:
         """Take one robot's action for the current step; returns a drop kind or None if taken."""
         if not 0 <= robot_id < self.num_robots:
-            return "unknown_robot"
+            return DropKind.UNKNOWN_ROBOT
         if (episode, step) < (self.episode, self.step):
-            return "stale_step"
+            return DropKind.STALE_STEP
         if (episode, step) > (self.episode, self.step):
-            return "future_step"
+            return DropKind.FUTURE_STEP
         if self._got[robot_id]:
-            return "duplicate"
+            return DropKind.DUPLICATE_ACTION
         if not 0 <= action < self.num_actions:
-            return "out_of_range"
+            return DropKind.ACTION_OUT_OF_RANGE
         self._actions[robot_id] = action
         self._got[robot_id] = True
         self._ep_version = max(self._ep_version, int(version))
@@ -205,12 +190,9 @@ class LockstepSim:
                            self.instance_id, res.reward, res.terminated, res.truncated, missed)
         result = None
         if res.terminated or res.truncated:
-            ep = res.info["episode"]
             self.episodes_done += 1
-            result = EpisodeResult(
-                env_name=self.cfg.env, episode=self.episode, length=ep.length,
-                completed=bool(ep.success), makespan=ep.makespan,
-                episode_return=float(ep.episode_return), collisions=int(ep.collisions),
-                formation_error=float(ep.formation_error), missed_actions=self._ep_missed,
-                policy_version=self._ep_version, instance_id=self.instance_id)
+            result = EpisodeResult.from_stats(
+                res.info["episode"], env_name=self.cfg.env, episode=self.episode,
+                missed_actions=self._ep_missed, policy_version=self._ep_version,
+                instance_id=self.instance_id)
         return self.frame, result

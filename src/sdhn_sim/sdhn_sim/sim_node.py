@@ -15,7 +15,6 @@ episode's result, done, and its totals when it stops) to that file as JSON lines
 from __future__ import annotations
 
 import array
-import dataclasses
 import functools
 import signal
 import time
@@ -32,8 +31,10 @@ from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 
 from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
+from sdhn_sim.drops import DropKind
 from sdhn_sim.envs.registry import env_names
-from sdhn_sim.lockstep import EpisodeResult, Frame, LockstepSim, SimConfig, SimConfigError
+from sdhn_sim.episode import EpisodeResult
+from sdhn_sim.lockstep import Frame, LockstepSim, SimConfig, SimConfigError
 from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.params import declare, floating, integer, string
 from sdhn_sim.ros.qos import STEP
@@ -69,10 +70,7 @@ class SimNode(Node):
     def __init__(self, context: Context) -> None:
         # The team namespace is the node's: /sdhn unless remapped (-r __ns:=/other).
         super().__init__("sim", namespace=topics.DEFAULT_TEAM_NS, context=context)
-        try:
-            topics.check_team_ns(self.get_namespace())
-        except topics.NamespaceError as e:
-            raise ConfigError(f"{e} (the simulator's namespace, -r __ns:=...)") from None
+        topics.check_team_ns(self.get_namespace(), "namespace (the simulator's, -r __ns:=...)")
         p = declare(self, PARAMETERS)
         try:
             self.sim = LockstepSim(sim_config(p))
@@ -166,16 +164,17 @@ class SimNode(Node):
     def on_action(self, robot: int, data: bytes) -> None:
         # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per action.
         if not self.started or self.deadline == float("inf"):
-            self.drop("not_started", f"action from robot {robot} before step 0 or after the end")
+            self.drop(DropKind.NOT_STARTED,
+                      f"action from robot {robot} before step 0 or after the end")
             return
         try:
             msg = cdr.read_action(data)
         except cdr.CdrError as e:
-            self.drop("undecodable", f"robot {robot}'s action: {e}")
+            self.drop(DropKind.UNDECODABLE, f"robot {robot}'s action: {e}")
             return
         rid = msg.robot_id
         if rid != robot:
-            self.drop("unknown_robot", f"robot_id {rid} on robot {robot}'s action topic")
+            self.drop(DropKind.UNKNOWN_ROBOT, f"robot_id {rid} on robot {robot}'s action topic")
             return
         kind = self.sim.submit(rid, msg.episode, msg.step, msg.action, msg.policy_version)
         if kind is not None:
@@ -247,18 +246,12 @@ class SimNode(Node):
         return m
 
     def publish_summary(self, r: EpisodeResult) -> None:
-        m = EpisodeSummary()
+        m = r.to_message(EpisodeSummary())
         m.header.stamp = self.get_clock().now().to_msg()
-        m.env_name, m.episode, m.length = r.env_name, r.episode, r.length
-        m.completed, m.makespan = r.completed, r.makespan or 0
-        m.episode_return, m.collisions = r.episode_return, r.collisions
-        m.formation_error, m.missed_actions = r.formation_error, r.missed_actions
-        m.policy_version, m.instance_id = r.policy_version, r.instance_id
         self.episode_pub.publish(m)
-        self.events.write("episode", **dataclasses.asdict(r))
-        makespan = r.makespan if r.completed else "NC"
+        self.events.write("episode", **r.to_event())
         self.get_logger().info(
-            f"episode {r.episode} done: makespan={makespan} length={r.length} "
+            f"episode {r.episode} done: makespan={r.makespan_text} length={r.length} "
             f"return={r.episode_return:.2f} collisions={r.collisions} missed={r.missed_actions} "
             f"policy_version={r.policy_version}")
 

@@ -24,6 +24,7 @@ from safetensors.numpy import load as st_load
 from safetensors.numpy import save as st_save
 
 from sdhn_policy.weights import atomic_write_bytes, sha256_hex
+from sdhn_sim import bounded_json
 from sdhn_train.learners.base import Arrays, JsonDict, Learner
 
 CHECKPOINT_FORMAT = "sdhn-checkpoint/1"
@@ -123,17 +124,24 @@ def save_checkpoint(path: str | Path, arrays: dict[str, np.ndarray], meta: dict[
 
 def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     path = Path(path)
-    try:
-        meta = json.loads(path.with_suffix(".json").read_text())
+    try:  # bounded: a crafted sidecar (deep nesting) is a CheckpointError, not a crash
+        meta = bounded_json.loads(path.with_suffix(".json").read_bytes(), finite=False,
+                                  max_int_digits=bounded_json.STATE_FILE_INT_DIGITS)
         payload = path.with_suffix(".safetensors").read_bytes()
-    except (OSError, json.JSONDecodeError) as e:
+    except (OSError, bounded_json.JsonInputError) as e:
         raise CheckpointError(f"cannot read checkpoint {path}: {e}") from e
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path}: metadata is not a JSON object")
     if meta.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(
             f"{path}: format {meta.get('format')!r}, expected {CHECKPOINT_FORMAT}")
     if sha256_hex(payload) != meta.get("tensors_sha256"):
         raise CheckpointError(f"{path}: tensors file does not match its sha256")
-    return st_load(payload), meta
+    try:
+        return st_load(payload), meta
+    except Exception as e:  # safetensors' own error type: a blob whose sha256 was forged too
+        raise CheckpointError(f"{path}: tensors file is not a valid safetensors blob: {e}"
+                              ) from e
 
 
 def module_arrays(prefix: str, module: torch.nn.Module) -> dict[str, np.ndarray]:

@@ -10,7 +10,7 @@ the previous one, said in one line. Nothing is written into the run before the c
 
 Exit codes: 0 done (or stopped by Ctrl-C / SIGTERM after saving a checkpoint), 2 invalid
 configuration or unusable checkpoint (one line; ``--debug`` for the traceback), 3 training
-stopped on a non-finite loss, 1 another learner process failed (``train.learner_processes`` > 1;
+stopped on a non-finite loss, 1 another data-parallel rank failed (``train.learner_processes`` > 1;
 one line naming it).
 """
 
@@ -35,7 +35,7 @@ from sdhn_train.config import (
     set_field,
     validate,
 )
-from sdhn_train.data_parallel import LearnerProcessError
+from sdhn_train.data_parallel import RankFailedError
 
 SHORTCUTS = {  # --flag -> config field
     "env": "env.name", "algo": "algo.name", "seed": "train.seed",
@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         text = " ".join(str(e).split())
         print(f"train: invalid configuration: {text}", file=sys.stderr)
         return 2
-    except LearnerProcessError as e:  # another learner process failed (train.learner_processes)
+    except RankFailedError as e:  # another data-parallel rank failed (train.learner_processes)
         if args.debug:
             raise
         print(f"train: {e}", file=sys.stderr)

@@ -1,4 +1,4 @@
-"""The collectives of data-parallel learner processes (``train.learner_processes`` = K > 1).
+"""The collectives of data-parallel ranks (``train.learner_processes`` = K > 1).
 
 K processes each collect rollouts on their B/K environments and run the same PPO update on
 their share of every minibatch. Before each optimiser step the gradients are averaged over the K
@@ -30,8 +30,8 @@ from torch import Tensor, nn
 TIMEOUT = timedelta(minutes=30)
 
 
-class LearnerProcessError(RuntimeError):
-    """A learner process other than this one failed (its error line, or its exit code)."""
+class RankFailedError(RuntimeError):
+    """A data-parallel rank other than this one failed (its error line, or its exit code)."""
 
 
 class Command(IntEnum):
@@ -41,8 +41,8 @@ class Command(IntEnum):
     USAGE = 3  # gather each rank's CPU seconds and peak RSS (bench_train)
 
 
-def end_learner_process(code: int) -> NoReturn:
-    """End a spawned learner process (rank >= 1) once its group is closed, without the
+def end_rank(code: int) -> NoReturn:
+    """End a spawned data-parallel rank (>= 1) once its group is closed, without the
     interpreter's teardown: there gloo's C++ threads are destroyed with the static objects and,
     now and then, abort the process ('terminate called without an active exception', exit -6;
     seen once in CI in the K = 2 exactness test) after its work had finished."""
@@ -52,7 +52,7 @@ def end_learner_process(code: int) -> NoReturn:
 
 
 class Group:
-    """This process's place among the K learner processes (rank 0 evaluates, logs, writes)."""
+    """This process's place among the K data-parallel ranks (rank 0 evaluates, logs, writes)."""
 
     def __init__(self, rank: int, world: int) -> None:
         self.rank, self.world = rank, world

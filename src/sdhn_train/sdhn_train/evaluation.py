@@ -47,7 +47,7 @@ def set_metrics(infix: str, episodes: list[EpisodeStats]) -> dict[str, float]:
     """Success rate and makespan (completed episodes only) first, then return and the rest."""
     if not episodes:
         return {}
-    out = {f"eval/{infix}success_rate": float(np.mean([e.success for e in episodes]))}
+    out = {f"eval/{infix}success_rate": float(np.mean([e.completed for e in episodes]))}
     done = [e.makespan for e in episodes if e.makespan is not None]
     if done:
         out[f"eval/{infix}makespan"] = float(np.mean(done))

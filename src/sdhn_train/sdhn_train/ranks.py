@@ -1,4 +1,4 @@
-"""Starting, serving and stopping the data-parallel learner processes (``train.learner_processes``).
+"""Starting, serving and stopping the data-parallel ranks (``train.learner_processes``).
 
     with learner_ranks(cfg, run_dir, resume, warm_start) as group:   # None when K = 1
         code = Trainer(cfg, run_dir=run_dir, warm_start=warm_start, group=group).run(resume)
@@ -8,7 +8,7 @@ This process is rank 0; ranks 1..K-1 are spawned here and run ``serve``: the sam
 on request. They ignore SIGINT / SIGTERM: a Ctrl-C reaches the whole process group, and rank 0
 alone decides to stop (after a checkpoint that holds every rank's shard). A rank that fails puts
 its error on a queue and exits; its peers' next collective then fails at once (its sockets
-closed), and rank 0 raises one ``LearnerProcessError`` naming it.
+closed), and rank 0 raises one ``RankFailedError`` naming it.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 import torch.multiprocessing as mp
 
 from sdhn_train.config import Config, apply_dict
-from sdhn_train.data_parallel import Command, Group, LearnerProcessError, end_learner_process
+from sdhn_train.data_parallel import Command, Group, RankFailedError, end_rank
 from sdhn_train.learners.base import NonFiniteLossError
 from sdhn_train.trainer import EnvFactory, Trainer, default_env_factory
 
@@ -97,12 +97,12 @@ def _worker(rank: int, job: _Job, errors: Any) -> None:
         serve(trainer)
     except BaseException as e:  # any failure is reported to rank 0, then this process ends
         text = " ".join(str(e).split()) or type(e).__name__
-        errors.put(f"learner process {rank} failed: {type(e).__name__}: {text}")
+        errors.put(f"data-parallel rank {rank} failed: {type(e).__name__}: {text}")
         code = 1
     finally:
         if group is not None:
             group.close()
-    end_learner_process(code)
+    end_rank(code)
 
 
 @contextmanager
@@ -110,7 +110,7 @@ def learner_ranks(cfg: Config, run_dir: Path | None, resume: Path | None = None,
                   warm_start: bool = True, env_factory: EnvFactory = default_env_factory
                   ) -> Iterator[Group | None]:
     """Rank 0's group with ranks 1..K-1 running beside it (None and no process when K = 1).
-    On leaving: the others are told to stop and joined; if one failed, LearnerProcessError."""
+    On leaving: the others are told to stop and joined; if one failed, RankFailedError."""
     world = cfg.train.learner_processes
     if world == 1:
         yield None
@@ -134,7 +134,7 @@ def learner_ranks(cfg: Config, run_dir: Path | None, resume: Path | None = None,
         failure = _failure(procs, errors)
         if failure is None:
             raise
-        raise LearnerProcessError(failure) from e
+        raise RankFailedError(failure) from e
     finally:
         for p in procs:
             p.join(timeout=30.0 if stopped else 0.0)
@@ -153,5 +153,5 @@ def _failure(procs: list[Any], errors: Any, wait_s: float = 10.0) -> str | None:
         p.join(timeout=max(0.0, deadline - time.monotonic()))
         if p.exitcode not in (None, 0):
             return (errors.get() if not errors.empty()
-                    else f"learner process {rank} ended with exit code {p.exitcode}")
+                    else f"data-parallel rank {rank} ended with exit code {p.exitcode}")
     return None

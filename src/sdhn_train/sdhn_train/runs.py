@@ -65,7 +65,7 @@ def episode_metrics(prefix: str, episodes: list[EpisodeStats]) -> dict[str, floa
     out = {
         f"{prefix}/episodic_return": float(np.mean([e.episode_return for e in episodes])),
         f"{prefix}/episode_length": float(np.mean([e.length for e in episodes])),
-        f"{prefix}/success_rate": float(np.mean([e.success for e in episodes])),
+        f"{prefix}/success_rate": float(np.mean([e.completed for e in episodes])),
         f"{prefix}/collisions": float(np.mean([e.collisions for e in episodes])),
     }
     done = [e.makespan for e in episodes if e.makespan is not None]

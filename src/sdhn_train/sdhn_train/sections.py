@@ -76,7 +76,7 @@ class TrainConfig:
     deterministic: bool = opt(False, "torch deterministic algorithms")
     threads: int = opt(1, "torch intra-op threads")
     learner_processes: int = opt(
-        1, "K data-parallel learner processes (PPO learners): each collects on B/K envs and "
+        1, "K data-parallel ranks (PPO learners): each collects on B/K envs and "
            "computes its share of every minibatch, gradients averaged before each step; rank 0 "
            "evaluates, logs and checkpoints (sdhn_train.data_parallel)")
     retain_freed_memory: bool = opt(

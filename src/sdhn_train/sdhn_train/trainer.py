@@ -63,13 +63,13 @@ def default_run_dir(cfg: Config) -> Path:
 
 
 def rank_seed(seed: int, rank: int) -> int:
-    """Learner process ``rank``'s seed (its environments and action draws): rank 0 keeps
-    ``train.seed``, so one learner process is today's run exactly."""
+    """Data-parallel rank ``rank``'s seed (its environments and action draws): rank 0 keeps
+    ``train.seed``, so one data-parallel rank is today's run exactly."""
     return seed + 1_000_003 * rank
 
 
 class Trainer:
-    """With ``group`` (``train.learner_processes`` > 1) this is one of K learner processes on
+    """With ``group`` (``train.learner_processes`` > 1) this is one of K data-parallel ranks on
     B/K environments; only rank 0 runs ``run`` (evaluates, logs, checkpoints, exports), the
     others serve its commands (``sdhn_train.ranks``)."""
 
@@ -258,7 +258,7 @@ class Trainer:
                 bar.update(self.global_step, {
                     "sps": f"{sps:.0f}",
                     "ret": f"{np.mean([e.episode_return for e in recent]):.1f}" if recent else "-",
-                    "succ": f"{np.mean([e.success for e in recent]):.2f}" if recent else "-"})
+                    "succ": f"{np.mean([e.completed for e in recent]):.2f}" if recent else "-"})
         except NonFiniteLossError as e:
             bar.close()
             log.close()

@@ -2,7 +2,8 @@
 
 Subscribes to every robot's obs and action and to ``state`` (N from the env), assembles team
 transitions by (episode, step) (``sdhn_train.transitions``) on the executor thread, and hands
-every ``rollout_steps`` transitions to the learner *process* (``sdhn_train.learner_process``:
+every ``rollout_steps`` transitions to the learner offload *process*
+(``sdhn_train.learner_offload``:
 raw NumPy frames over a pipe, nothing pickled), which runs the algorithm's learner, the same as
 the in-process trainer's (``sdhn_train.stream_learner``), checkpoints (atomic) and sends the new
 weights back. The node publishes them (version + 1, LATCHED, stamped with the update's end) and
@@ -51,7 +52,9 @@ from sdhn_msgs.msg import (
     RobotObservation,
     TeamState,
 )
+from sdhn_sim.drops import DropKind, describe
 from sdhn_sim.envs.registry import env_names, make_env
+from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP, STEP_DEPTH
 from sdhn_sim.ros.runner import ConfigError, run_node
@@ -61,9 +64,7 @@ from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, apply_dict, load_yaml, validate
 from sdhn_train.config import ConfigError as TrainConfigError
 from sdhn_train.envinfo import EnvInfo
-from sdhn_train.learner_process import (
-    PAST_TOTAL,
-    ROLLOUT_DROPPED,
+from sdhn_train.learner_offload import (
     HypergraphSample,
     LearnerClient,
     LearnerStartError,
@@ -75,7 +76,6 @@ from sdhn_train.transitions import TransitionAssembler
 QUEUE_ROLLOUTS = 4  # rollouts waiting for the pipe (the learner's receiver drains it at once)
 STATUS_PERIOD_S = 2.0
 LAG_PERIOD_S = 0.1
-UNDECODABLE = "undecodable CDR"
 
 
 @dataclass(frozen=True)
@@ -138,8 +138,7 @@ def check_params(p: TrainerParams) -> None:
         raise ConfigError(f"env: {p.env!r} is unknown; allowed: {', '.join(env_names())}")
     if p.algo not in ALGO_NAMES:
         raise ConfigError(f"algo: {p.algo!r} is unknown; allowed: {', '.join(ALGO_NAMES)}")
-    if not topics.is_team_ns(p.team_ns):  # the one namespace rule (sdhn_sim.ros.topics)
-        raise ConfigError(f"team_ns: {p.team_ns!r}; allowed: {topics.TEAM_NS_RULE}")
+    topics.check_team_ns(p.team_ns)
 
 
 def build_config(env: str, algo: str, seed: int, rollout_steps: int, config_path: str, *,
@@ -181,7 +180,7 @@ def check_run_dir(p: TrainerParams) -> Path:
 
 
 def start_learner(p: TrainerParams, cfg: Config, run_dir: Path) -> LearnerClient:
-    """The learner process (``sdhn_train.learner_process``), started and holding its first
+    """The learner offload process (``sdhn_train.learner_offload``), started and holding its first
     version (fresh: checkpointed, warm-started from ``init_from``; resume: loaded). ConfigError
     for a checkpoint or an ``init_from`` actor it cannot load."""
     try:
@@ -213,7 +212,7 @@ class TrainerNode(Node):
                                              # anyway; steps the sim 'stay'ed drop at once
                                              settle_lag=STEP_DEPTH)
         self.dropped: dict[str, int] = {}  # message- and rollout-level drops seen by the node
-        self.learner_dropped: dict[str, int] = {}  # reported by the learner process
+        self.learner_dropped: dict[str, int] = {}  # reported by the learner offload process
         self._logged_causes: set[str] = set()
         self._episodes: list[dict[str, Any]] = []
         self._last_status = ""
@@ -268,7 +267,7 @@ class TrainerNode(Node):
         if kind not in self._logged_causes:
             self._logged_causes.add(kind)
             self.get_logger().warning(
-                f"dropped: {kind} ({detail}); counting, logged once per cause")
+                f"dropped: {describe(kind)}: {detail}; counting, logged once per cause")
 
     def _drop(self, kind: str | None, topic: str, detail: str) -> None:
         if kind is not None:
@@ -282,10 +281,10 @@ class TrainerNode(Node):
         try:
             m = cdr.read_observation(data)
         except cdr.CdrError as e:
-            self._drop(UNDECODABLE, self._obs_topics[robot], str(e))
+            self._drop(DropKind.UNDECODABLE, self._obs_topics[robot], str(e))
             return
         if m.robot_id != robot:
-            self._drop("robot id differs from the topic's robot", self._obs_topics[robot],
+            self._drop(DropKind.WRONG_ROBOT, self._obs_topics[robot],
                        f"robot_id={m.robot_id}")
             return
         reason = self.assembler.add_obs(m.episode, m.step, m.robot_id, m.obs,
@@ -300,10 +299,10 @@ class TrainerNode(Node):
         try:
             m = cdr.read_action(data)
         except cdr.CdrError as e:
-            self._drop(UNDECODABLE, self._action_topics[robot], str(e))
+            self._drop(DropKind.UNDECODABLE, self._action_topics[robot], str(e))
             return
         if m.robot_id != robot:
-            self._drop("robot id differs from the topic's robot", self._action_topics[robot],
+            self._drop(DropKind.WRONG_ROBOT, self._action_topics[robot],
                        f"robot_id={m.robot_id}")
             return
         reason = self.assembler.add_action(m.episode, m.step, m.robot_id, m.action,
@@ -317,7 +316,7 @@ class TrainerNode(Node):
         try:
             m = cdr.read_state(data)
         except cdr.CdrError as e:
-            self._drop(UNDECODABLE, topics.absolute(self.ns, topics.STATE), str(e))
+            self._drop(DropKind.UNDECODABLE, topics.absolute(self.ns, topics.STATE), str(e))
             return
         reason = self.assembler.add_state(m.episode, m.step, m.state, num_robots=m.num_robots,
                                           team_reward=m.team_reward, terminated=m.terminated,
@@ -328,11 +327,7 @@ class TrainerNode(Node):
         self._queue_ready()
 
     def on_episode(self, m: EpisodeSummary) -> None:
-        self._episodes.append({
-            "episode_return": float(m.episode_return), "length": int(m.length),
-            "makespan": int(m.makespan) if m.completed else None,
-            "completed": bool(m.completed), "collisions": int(m.collisions),
-            "formation_error": float(m.formation_error)})
+        self._episodes.append(EpisodeResult.from_message(m).to_event())
 
     def on_lag_timer(self) -> None:
         """How late the executor runs a 10 Hz timer: the longest stall of the callbacks, which
@@ -348,10 +343,10 @@ class TrainerNode(Node):
                 self._log_once(kind, f"{count} so far")
         while (ready := self.assembler.pop_rollout()) is not None:
             if self.total_steps and self.transitions_learned >= self.total_steps:
-                self._count(PAST_TOTAL, f"total_steps={self.total_steps} reached")
+                self._count(DropKind.PAST_TOTAL_STEPS, f"total_steps={self.total_steps} reached")
                 continue
             if self.learner.waiting >= QUEUE_ROLLOUTS:
-                self._count(ROLLOUT_DROPPED, f"{QUEUE_ROLLOUTS} rollouts waiting to be sent")
+                self._count(DropKind.LEARNER_BUSY, f"{QUEUE_ROLLOUTS} rollouts waiting to be sent")
                 continue
             episodes, self._episodes = self._episodes, []
             self.learner.submit(ready, episodes)  # queues only; a sender thread writes the pipe
@@ -409,7 +404,7 @@ class TrainerNode(Node):
         for kind, count in u.dropped.items():
             if count > self.learner_dropped.get(kind, 0):
                 self.learner_dropped[kind] = count
-                self._log_once(kind, f"in the learner process: {count} so far")
+                self._log_once(kind, f"in the learner offload process: {count} so far")
         for graph in u.hypergraphs:
             self.publish_hypergraph(graph, u.version)
         self.get_logger().info(

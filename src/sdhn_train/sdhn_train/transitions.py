@@ -17,10 +17,11 @@ Transitions leave in (episode, step) order. A record that is still incomplete wh
 newer records have appeared (a robot's action never came: the simulator made it 'stay'; the
 trainer started mid-step) is dropped and counted; so is a step of which nothing ever arrived,
 once a later step of the same episode is finished. Every step the simulator made after the
-trainer's first is thus a transition, a counted step drop (``MISSED_ACTION``,
-``INCOMPLETE_STEP``, ``STEP_NEVER_SEEN``), a terminal step, or still pending (``flush``
-settles those at the end). A step the simulator took with a robot's 'stay' (its TeamState's
-``missed_actions`` says so) is dropped at once as ``MISSED_ACTION``, never learned from.
+trainer's first is thus a transition, a counted step drop (``DropKind.MISSED_ACTION``,
+``DropKind.INCOMPLETE_STEP``, ``DropKind.STEP_NEVER_SEEN``), a terminal step, or still pending
+(``flush`` settles those at the end). A step the simulator took with a robot's 'stay' (its
+TeamState's ``missed_actions`` says so) is dropped at once as ``DropKind.MISSED_ACTION``, never
+learned from.
 The stream then has a *gap*: the transition
 before it is marked truncated (the learner bootstraps from the value of the state after it, as
 for a step limit) and the next segment starts with a hidden-state reset. The actors' real GRU
@@ -47,27 +48,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from sdhn_sim.drops import DropKind
 from sdhn_train.rollout import Rollout
 
 Key = tuple[int, int]  # (episode, step)
 
-# Drop reasons, the kinds the node counts and logs once each.
-WRONG_OBS_LENGTH = "wrong obs length"
-WRONG_STATE_LENGTH = "wrong state length"
-NON_FINITE = "NaN/Inf value"
-UNKNOWN_ROBOT = "unknown robot id"
-ROBOT_MISMATCH = "robot id differs from the topic's robot"
-WRONG_TEAM_SIZE = "wrong num_robots"
-STALE_STEP = "stale step (already assembled or dropped)"
-FUTURE_STEP = "future step (beyond the step limit)"
-DUPLICATE_OBS = "duplicate obs"
-DUPLICATE_ACTION = "duplicate action"
-DUPLICATE_STATE = "duplicate state"
-ACTION_RANGE = "action out of range"
-BAD_LOG_PROB = "log_prob not finite or > 0"
-INCOMPLETE_STEP = "incomplete step (missing obs, action or state)"
-STEP_NEVER_SEEN = "step never seen (none of its messages arrived)"
-MISSED_ACTION = "step with a missed action (the simulator made a robot 'stay')"
 
 
 @dataclass
@@ -168,40 +153,40 @@ class TransitionAssembler:
     # -- input ------------------------------------------------------------------------------
 
     def add_obs(self, episode: int, step: int, robot_id: int, obs: npt.NDArray[np.float32], *,
-                num_robots: int, terminated: bool, truncated: bool) -> str | None:
+                num_robots: int, terminated: bool, truncated: bool) -> DropKind | None:
         if num_robots != self.n:
-            return WRONG_TEAM_SIZE
+            return DropKind.WRONG_TEAM_SIZE
         if not 0 <= robot_id < self.n:
-            return UNKNOWN_ROBOT
+            return DropKind.UNKNOWN_ROBOT
         if obs.shape != (self.d,):
-            return WRONG_OBS_LENGTH
+            return DropKind.WRONG_OBS_LENGTH
         if not np.all(np.isfinite(obs)):
-            return NON_FINITE
+            return DropKind.NON_FINITE_OBS
         rec, reason = self._record((episode, step))
         if rec is None:
             return reason
         if rec.have_obs[robot_id]:
-            return DUPLICATE_OBS
+            return DropKind.DUPLICATE_OBS
         rec.obs[robot_id] = obs
         rec.have_obs[robot_id] = True
         self._advance()
         return None
 
     def add_action(self, episode: int, step: int, robot_id: int, action: int, *,
-                   log_prob: float, version: int) -> str | None:
+                   log_prob: float, version: int) -> DropKind | None:
         if not 0 <= robot_id < self.n:
-            return UNKNOWN_ROBOT
+            return DropKind.UNKNOWN_ROBOT
         if not 0 <= action < self.num_actions:
-            return ACTION_RANGE
+            return DropKind.ACTION_OUT_OF_RANGE
         if not (np.isfinite(log_prob) and log_prob <= 1e-6):
-            return BAD_LOG_PROB
+            return DropKind.BAD_LOG_PROB
         if (episode, step) in self._closed:
             return None  # an answer to a terminal step: nothing to learn from, not an error
         rec, reason = self._record((episode, step))
         if rec is None:
             return reason
         if rec.have_action[robot_id]:
-            return DUPLICATE_ACTION
+            return DropKind.DUPLICATE_ACTION
         rec.actions[robot_id] = action
         rec.log_probs[robot_id] = min(log_prob, 0.0)
         rec.versions[robot_id] = version
@@ -211,21 +196,21 @@ class TransitionAssembler:
 
     def add_state(self, episode: int, step: int, state: npt.NDArray[np.float32], *,
                   num_robots: int, team_reward: float, terminated: bool,
-                  truncated: bool, missed: int = 0) -> str | None:
+                  truncated: bool, missed: int = 0) -> DropKind | None:
         """``missed``: the state's ``missed_actions``, robots the simulator made 'stay' in the
         step before; that step can never be complete, and is dropped as soon as this is known
-        (``MISSED_ACTION``) instead of after ``settle_lag`` more records."""
+        (``DropKind.MISSED_ACTION``) instead of after ``settle_lag`` more records."""
         if num_robots != self.n:
-            return WRONG_TEAM_SIZE
+            return DropKind.WRONG_TEAM_SIZE
         if state.shape != (self.s,):
-            return WRONG_STATE_LENGTH
+            return DropKind.WRONG_STATE_LENGTH
         if not (np.all(np.isfinite(state)) and np.isfinite(team_reward)):
-            return NON_FINITE
+            return DropKind.NON_FINITE_STATE
         rec, reason = self._record((episode, step))
         if rec is None:
             return reason
         if rec.state is not None:
-            return DUPLICATE_STATE
+            return DropKind.DUPLICATE_STATE
         rec.state = state
         rec.team_reward, rec.terminated, rec.truncated = team_reward, terminated, truncated
         if missed > 0 and step > 0:
@@ -264,14 +249,14 @@ class TransitionAssembler:
 
     # -- internals --------------------------------------------------------------------------
 
-    def _record(self, key: Key) -> tuple[_Record | None, str | None]:
+    def _record(self, key: Key) -> tuple[_Record | None, DropKind | None]:
         episode, step = key
         if step > self.max_steps:
-            return None, FUTURE_STEP
+            return None, DropKind.FUTURE_STEP
         if self._cursor is not None and step == 0 and episode + 1 < self._cursor[0]:
             self.restart()  # the simulator restarted (its episode counter went back)
         if self._cursor is not None and key < self._cursor:
-            return None, STALE_STEP
+            return None, DropKind.STALE_STEP
         rec = self._records.get(key)
         if rec is None:
             self._counter += 1
@@ -304,7 +289,7 @@ class TransitionAssembler:
                 self._emit(key, rec, nxt)
                 continue
             if rec.missed or self._settled(rec):
-                cause = MISSED_ACTION if rec.missed else INCOMPLETE_STEP
+                cause = DropKind.MISSED_ACTION if rec.missed else DropKind.INCOMPLETE_STEP
                 self.stats.dropped[cause] = self.stats.dropped.get(cause, 0) + 1
                 self._finish(key, gap=True, episode_end=False)
                 continue
@@ -325,7 +310,7 @@ class TransitionAssembler:
         cur = self._cursor
         if cur is not None and key[0] == cur[0] and key[1] > cur[1]:
             d = self.stats.dropped
-            d[STEP_NEVER_SEEN] = d.get(STEP_NEVER_SEEN, 0) + key[1] - cur[1]
+            d[DropKind.STEP_NEVER_SEEN] = d.get(DropKind.STEP_NEVER_SEEN, 0) + key[1] - cur[1]
 
     def _finish(self, key: Key, gap: bool, episode_end: bool) -> None:
         self._count_unseen(key)

@@ -1,4 +1,5 @@
-"""Environments of sdhn (pure NumPy; no ROS, no torch): MAIF and the RWARE adapter.
+"""Environments of sdhn (pure NumPy; no ROS, no torch): MAIF, RWARE in NumPy and the
+adapter of the real rware package.
 
 Entry points: ``make_env(name, num_envs, seed, **overrides)``, ``env_names()``,
 ``make_single_env(name, seed)``. Every env follows ``api.BatchedEnv``.
@@ -13,6 +14,7 @@ from .maif import MAIF_REWARDS, MaifEnv, MaifRewards, MaifWorld
 from .maif_instances import MAIF_CONFIGS, MaifConfig, MaifInstances, load_instances
 from .registry import env_names, make_env, make_single_env
 from .render import render_grid, robot_colors
+from .rware_batched import RwareBatchedEnv
 from .rware_env import RwareEnv
 from .single import SingleEnv, SingleStep
 
@@ -26,6 +28,7 @@ __all__ = [
     "MaifInstances",
     "MaifRewards",
     "MaifWorld",
+    "RwareBatchedEnv",
     "RwareEnv",
     "SingleEnv",
     "SingleStep",

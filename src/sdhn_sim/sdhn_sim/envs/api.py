@@ -27,7 +27,7 @@ class EpisodeStats:
     episode_return: float  # sum of team rewards over the episode
     length: int  # steps taken
     makespan: int | None  # steps until every robot was on its goal; None = not completed (NC)
-    success: bool
+    completed: bool  # every robot reached its goal before the step limit
     collisions: int  # robot-collision events summed over robots and steps
     formation_error: float  # mean per-step formation error (0 where the env has no formation)
     deliveries: int | None = None  # RWARE: requested shelves delivered; None elsewhere

@@ -52,8 +52,8 @@ class MaifRewards:
 
 # ``reference``: the benchmark's terms (oscillating earns more than waiting; standing on one's
 # goal pays +1 per step, so completing ends an income). ``corrected`` (the training default):
-# potential-based progress (+0.1 closer, -0.1 farther) and no stay-on-goal income. See the spec
-# /work/shared/spec/maif.md and docs/maif_rewards.md.
+# potential-based progress (+0.1 closer, -0.1 farther) and no stay-on-goal income. See
+# docs/maif_rewards.md.
 MAIF_REWARDS: dict[str, MaifRewards] = {
     "reference": MaifRewards(),
     "corrected": MaifRewards(stay_on_goal=0.0, progress_away=-0.1, name="corrected"),
@@ -372,7 +372,7 @@ class MaifEnv:
                         episode_return=float(self._ret[e]),
                         length=t,
                         makespan=t if bool(terminated[e]) else None,
-                        success=bool(terminated[e]),
+                        completed=bool(terminated[e]),
                         collisions=int(self._coll[e]),
                         formation_error=float(self._ferr[e] / t),
                     )

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-DATA_DIR = Path(__file__).resolve().parent.parent / "data"
+from sdhn_sim import data_files
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ MAIF_CONFIGS: dict[str, MaifConfig] = {
         _cfg("maif-40", 40, 96, 15, 1040),
     )
 }
-SHIPPED = ("maif-tiny", "maif-10", "maif-16", "maif-20")
+SHIPPED = data_files.MAIF_SHIPPED
 HELDOUT_SEED_OFFSET = 500_000
 """Held-out instances of a configuration: the same generator with ``instance_seed`` + this."""
 
@@ -188,7 +188,8 @@ def _all_reachable(
 
 
 def data_path(name: str) -> Path:
-    return DATA_DIR / f"{name}.npz"
+    """Where the instance set of ``name`` is shipped (or would be, see sdhn_sim.data_files)."""
+    return data_files.maif_instance_file(name)
 
 
 def save_instances(inst: MaifInstances, path: Path) -> None:
@@ -228,7 +229,7 @@ def load_instances(name_or_cfg: str | MaifConfig) -> MaifInstances:
         cfg = MAIF_CONFIGS[name_or_cfg]
     else:
         cfg = name_or_cfg
-    path = data_path(cfg.name)
-    if MAIF_CONFIGS.get(cfg.name) == cfg and path.exists():
-        return _load_file(cfg, path)
+    if MAIF_CONFIGS.get(cfg.name) == cfg and cfg.name in SHIPPED:
+        # a shipped set must be there: a missing file is a packaging bug, not a cue to generate
+        return _load_file(cfg, data_files.data_file(f"{cfg.name}.npz"))
     return generate_instances(cfg)

@@ -301,7 +301,7 @@ def evaluate_scripted(task: str, which: str, policy: str, *, instances: int = 10
     done = [e.makespan for e in eps if e.makespan is not None]
     return ScriptedResult(
         task=task, instance_set=which, policy=policy,
-        success_rate=float(np.mean([e.success for e in eps])),
+        success_rate=float(np.mean([e.completed for e in eps])),
         makespan=float(np.mean(done)) if done else None, lower_bound=lower_bound(env),
         episode_return=float(np.mean([e.episode_return for e in eps])), reward=reward,
         collisions=float(np.mean([e.collisions for e in eps])))

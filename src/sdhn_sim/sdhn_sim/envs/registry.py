@@ -9,9 +9,12 @@ Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100))
 with another generator seed, for evaluation on maps never trained on | "large": 1000 instances
 (100 maps) from a third seed, to train on many maps).
 
-RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``.
-Overrides: ``max_steps``, ``size`` ("tiny" | "small" | "medium" | "large"),
-``difficulty`` ("easy" | "normal" | "hard").
+RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``;
+``rware-tiny-2ag``, ``rware-tiny-4ag`` = rware's ``rware-tiny-{N}ag-v2`` (the tasks with published
+MAPPO figures). Overrides: ``max_steps``, ``size`` ("tiny" | "small" | "medium" | "large"),
+``difficulty`` ("easy" | "normal" | "hard"), ``backend`` ("batched" (default): the NumPy
+``RwareBatchedEnv``, equal to rware step for step | "rware": B real ``rware`` warehouses, the
+reference, whose ``Warehouse`` objects the centralised scripted policy reads).
 
 Adding an environment is one module implementing ``BatchedEnv`` plus one ``Family`` line in
 ``FAMILIES`` (see docs/adding-an-environment.md); every tool that takes an env name (trainer,
@@ -27,13 +30,16 @@ from typing import Any
 from .api import BatchedEnv
 from .maif import MaifEnv
 from .maif_instances import MAIF_CONFIGS, heldout_config, large_config, load_instances
+from .rware_batched import RwareBatchedEnv
 from .rware_env import RwareEnv
 from .single import SingleEnv
 
 MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order", "reward", "instance_set")
 INSTANCE_SETS = ("train", "heldout", "large")
-RWARE_OVERRIDES = ("max_steps", "size", "difficulty")
-RWARE_TASKS = {"rware-3": 3, "rware-6": 6, "rware-9": 9}
+RWARE_OVERRIDES = ("max_steps", "size", "difficulty", "backend")
+RWARE_TASKS = {"rware-3": 3, "rware-6": 6, "rware-9": 9, "rware-tiny-2ag": 2, "rware-tiny-4ag": 4}
+RWARE_TASK_SIZE = {"rware-tiny-2ag": "tiny", "rware-tiny-4ag": "tiny"}  # others: "small"
+RWARE_BACKENDS = ("batched", "rware")
 
 
 @dataclass(frozen=True)
@@ -55,8 +61,18 @@ def _make_maif(name: str, num_envs: int, seed: int, **overrides: Any) -> Batched
     return MaifEnv(load_instances(cfg), num_envs=num_envs, seed=seed, name=name, **overrides)
 
 
+def rware_task_size(name: str) -> str:
+    """The rware warehouse size of an RWARE task name."""
+    return RWARE_TASK_SIZE.get(name, "small")
+
+
 def _make_rware(name: str, num_envs: int, seed: int, **overrides: Any) -> BatchedEnv:
-    return RwareEnv(RWARE_TASKS[name], num_envs=num_envs, seed=seed, name=name, **overrides)
+    backend = overrides.pop("backend", "batched")
+    if backend not in RWARE_BACKENDS:
+        raise ValueError(f"backend must be one of {list(RWARE_BACKENDS)}, got {backend!r}")
+    overrides.setdefault("size", rware_task_size(name))
+    cls = RwareBatchedEnv if backend == "batched" else RwareEnv
+    return cls(RWARE_TASKS[name], num_envs=num_envs, seed=seed, name=name, **overrides)
 
 
 FAMILIES: tuple[Family, ...] = (

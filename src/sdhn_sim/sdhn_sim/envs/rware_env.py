@@ -8,7 +8,7 @@ same warehouse. Size and difficulty are overridable.
 
 rware 2.0.0 reports the 500-step limit as ``terminated=True, truncated=False``; the adapter
 reports it as what it is, a truncation (``terminated=False, truncated=True``), so learners
-bootstrap. RWARE has no success notion: ``EpisodeStats.makespan`` is None, ``success`` False,
+bootstrap. RWARE has no success notion: ``EpisodeStats.makespan`` is None, ``completed`` False,
 ``collisions`` 0 and ``formation_error`` 0. ``deliveries`` counts the requested shelves delivered:
 the registered tasks pay rware's *individual* reward, exactly +1 to one robot per delivery and
 nothing else, so the count is the number of +1 payments (and equals the return). It is not read
@@ -168,7 +168,7 @@ class RwareEnv:
                         episode_return=float(self._ret[b]),
                         length=self._t[b],
                         makespan=None,
-                        success=False,
+                        completed=False,
                         collisions=0,
                         formation_error=0.0,
                         deliveries=self._deliveries[b],

@@ -32,11 +32,11 @@ request queue).
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from .api import EpisodeStats, FloatArray, IntArray
+from .api import BatchedEnv, EpisodeStats, FloatArray, IntArray
 from .rware_env import NUM_ACTIONS, RwareEnv
 
 NOOP, FORWARD, LEFT, RIGHT, TOGGLE = range(NUM_ACTIONS)
@@ -202,14 +202,26 @@ class ScriptedPolicy:
         return act
 
 
-def run_episodes(env: RwareEnv, policy: RandomPolicy | ScriptedPolicy,
+class ObsPolicy(Protocol):
+    """A policy acting on the robots' observations [B, N, D] alone."""
+
+    def act(self, obs: FloatArray) -> IntArray: ...
+
+
+def run_episodes(env: BatchedEnv, policy: ScriptedPolicy | ObsPolicy,
                  seed: int | None = None) -> list[EpisodeStats]:
     """The first episode of each of the B environments (env b from seed ``seed + b``), by env
-    index."""
+    index. The centralised ``ScriptedPolicy`` needs the real rware backend (``RwareEnv``)."""
     obs, _ = env.reset(seed=seed)
     first: dict[int, EpisodeStats] = {}
     while len(first) < env.num_envs:
-        a = policy.act(obs) if isinstance(policy, RandomPolicy) else policy.act(env)
+        if isinstance(policy, ScriptedPolicy):
+            if not isinstance(env, RwareEnv):
+                raise TypeError("the centralised ScriptedPolicy reads rware's Warehouse objects: "
+                                "build the env with backend='rware'")
+            a = policy.act(env)
+        else:
+            a = policy.act(obs)
         res = env.step(a)
         obs = res.obs
         for ep in res.episodes:

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from .api import BatchedEnv, EpisodeStats, FloatArray, reward_name
 from .maif import MaifEnv, MaifWorld
+from .rware_batched import RwareBatchedEnv
 from .rware_env import RwareEnv
 
 
@@ -101,7 +102,7 @@ class SingleEnv:
     @property
     def positions(self) -> npt.NDArray[np.int64]:
         """[N, 2] robot cells (x, y) of the state the caller last saw (MAIF and RWARE)."""
-        if isinstance(self.env, RwareEnv):
+        if isinstance(self.env, RwareEnv | RwareBatchedEnv):
             return self.env.positions[0]
         return self.world().positions
 

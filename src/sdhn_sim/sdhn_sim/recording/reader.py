@@ -28,7 +28,7 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -36,6 +36,8 @@ from mcap.records import Channel, Chunk, Header, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rclpy.serialization import deserialize_message
 
+from sdhn_sim.drops import DropKind
+from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.recording.schema import message_class
 from sdhn_sim.ros import topics
 
@@ -278,7 +280,7 @@ def write_with_viz(rec: Recording, out: Path, chunk_bytes: int = 256 * 1024) -> 
             try:
                 msg = decode(m)
             except Exception:  # malformed CDR: counted like any message that cannot be drawn
-                deriver.dropped[f"{kind}/undecodable"] += 1
+                deriver.dropped[f"{kind}/{DropKind.UNDECODABLE}"] += 1
                 continue
             viz.write(deriver.derive(kind, msg, m.log_time_ns))
         writer.finish()
@@ -288,31 +290,22 @@ def write_with_viz(rec: Recording, out: Path, chunk_bytes: int = 256 * 1024) -> 
 # --- episode summaries ---------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class EpisodeRow:
-    episode: int
-    env_name: str
-    length: int
-    completed: bool
-    makespan: int | None  # None = NC
-    episode_return: float
-    collisions: int | None  # None = unknown (recomputed from state)
-    missed_actions: int
-    policy_version: int
-    source: str  # "episode" (the simulator's summary) or "state" (recomputed)
+class EpisodeRow(NamedTuple):
+    """One finished episode of a recording and where its figures came from."""
+
+    result: EpisodeResult
+    source: str  # "episode" (the simulator's summary) or "state" (recomputed; no collisions)
 
 
-def summaries_from_messages(rec: Recording) -> dict[int, EpisodeRow]:
+def summaries_from_messages(rec: Recording) -> dict[int, EpisodeResult]:
     rows = {}
     for _, m in rec.decoded(f"/{topics.EPISODE}", "sdhn_msgs/msg/EpisodeSummary"):
-        rows[int(m.episode)] = EpisodeRow(
-            int(m.episode), str(m.env_name), int(m.length), bool(m.completed),
-            int(m.makespan) if m.completed else None, float(m.episode_return),
-            int(m.collisions), int(m.missed_actions), int(m.policy_version), "episode")
+        r = EpisodeResult.from_message(m)
+        rows[r.episode] = r
     return rows
 
 
-def summaries_from_states(rec: Recording) -> dict[int, EpisodeRow]:
+def summaries_from_states(rec: Recording) -> dict[int, EpisodeResult]:
     """Episodes whose terminal TeamState was recorded, recomputed from the states (see above)."""
     steps: dict[int, dict[int, Any]] = {}
     for _, s in rec.decoded(f"/{topics.STATE}", "sdhn_msgs/msg/TeamState"):
@@ -329,16 +322,18 @@ def summaries_from_states(rec: Recording) -> dict[int, EpisodeRow]:
         rewards = [float(by_step[t].team_reward) for t in range(1, length + 1) if t in by_step]
         missed = sum(int(by_step[t].missed_actions) for t in range(1, length + 1) if t in by_step)
         completed = bool(last.terminated)
-        rows[episode] = EpisodeRow(episode, str(last.env_name), length, completed,
-                                   length if completed else None, float(np.sum(rewards)), None,
-                                   missed, versions.get(episode, 0), "state")
+        rows[episode] = EpisodeResult(
+            env_name=str(last.env_name), episode=episode, length=length, completed=completed,
+            makespan=length if completed else None, episode_return=float(np.sum(rewards)),
+            collisions=None, formation_error=None, missed_actions=missed,
+            policy_version=versions.get(episode, 0), instance_id=int(last.instance_id))
     return rows
 
 
 def episode_rows(rec: Recording) -> list[EpisodeRow]:
     """One row per finished episode: the simulator's summary where recorded, else recomputed."""
-    rows = summaries_from_states(rec)
-    rows.update(summaries_from_messages(rec))
+    rows = {k: EpisodeRow(r, "state") for k, r in summaries_from_states(rec).items()}
+    rows.update({k: EpisodeRow(r, "episode") for k, r in summaries_from_messages(rec).items()})
     return [rows[k] for k in sorted(rows)]
 
 
@@ -346,12 +341,12 @@ def format_rows(rows: list[EpisodeRow]) -> str:
     head = (f"{'episode':>7} {'length':>6} {'done':>5} {'makespan':>8} {'return':>10} "
             f"{'collisions':>10} {'missed':>6} {'version':>7}  source")
     lines = [head]
-    for r in rows:
+    for r, source in rows:
         lines.append(
             f"{r.episode:>7} {r.length:>6} {'yes' if r.completed else 'no':>5} "
-            f"{r.makespan if r.makespan is not None else 'NC':>8} {r.episode_return:>10.3f} "
+            f"{r.makespan_text:>8} {r.episode_return:>10.3f} "
             f"{r.collisions if r.collisions is not None else '-':>10} {r.missed_actions:>6} "
-            f"{r.policy_version:>7}  {r.source}")
+            f"{r.policy_version:>7}  {source}")
     return "\n".join(lines)
 
 
@@ -381,29 +376,52 @@ def maif_world(env_name: str, instance_id: int
     return obstacles.astype(bool), goals
 
 
+@dataclass
+class EpisodeStates:
+    """The recorded TeamStates of one episode, by step."""
+
+    env_name: str
+    instance_id: int
+    steps: list[int]
+    positions: npt.NDArray[np.int64]  # [T, N, 2] grid cells (x, y)
+    log_times: list[int]  # ns, when the recorder received each state
+
+
+def episode_states(rec: Recording, episode: int) -> EpisodeStates:
+    """The TeamStates of ``episode`` (KeyError if none was recorded)."""
+    recorded = rec.decoded(f"/{topics.STATE}", "sdhn_msgs/msg/TeamState")
+    states = sorted(((int(s.step), raw.log_time_ns, s) for raw, s in recorded
+                     if int(s.episode) == episode), key=lambda x: x[0])
+    if not states:
+        raise KeyError(episode)
+    positions = np.stack([np.frombuffer(s.positions, dtype=np.int32).astype(np.int64).reshape(-1, 2)
+                          for _, _, s in states])  # [T, N, 2]
+    first = states[0][2]
+    return EpisodeStates(str(first.env_name), int(first.instance_id), [t for t, _, _ in states],
+                         positions, [lt for _, lt, _ in states])
+
+
+def episode_map(env_name: str, k: int, positions: npt.NDArray[np.int64]
+                ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64] | None, str]:
+    """(obstacles, goals or None, a note saying where the map came from) of an episode of
+    ``env_name`` on instance ``k``; a blank grid around ``positions`` when the map is unknown."""
+    found = maif_world(env_name, k)
+    if found is not None:
+        obstacles, goals = found
+        return obstacles, goals, f"map: {env_name} instance {k} (from TeamState.instance_id)"
+    size = int(positions.max()) + 1 if positions.size else 1
+    maif = env_name.startswith("maif")
+    why = ("the recording predates TeamState.instance_id" if maif and k < 0 else
+           f"instance {k} is not in the installed {env_name} set" if maif else
+           f"{env_name} has no numbered instances")
+    return np.zeros((size, size), bool), None, f"map: unknown ({why}); robots on a blank grid"
+
+
 def episode_frames(rec: Recording, episode: int, cell_px: int = 16) -> EpisodeFrames:
     """One RGB image per recorded TeamState of ``episode`` (KeyError if none was recorded)."""
     from sdhn_sim.envs.render import render_grid
 
-    recorded = rec.decoded(f"/{topics.STATE}", "sdhn_msgs/msg/TeamState")
-    states = sorted(((int(s.step), s) for _, s in recorded if int(s.episode) == episode),
-                    key=lambda x: x[0])
-    if not states:
-        raise KeyError(episode)
-    positions = np.stack([np.frombuffer(s.positions, dtype=np.int32).astype(np.int64).reshape(-1, 2)
-                          for _, s in states])  # [T, N, 2]
-    env_name, k = str(states[0][1].env_name), int(states[0][1].instance_id)
-    found = maif_world(env_name, k)
-    if found is not None:
-        obstacles, goals = found
-        note = f"map: {env_name} instance {k} (from TeamState.instance_id)"
-    else:
-        size = int(positions.max()) + 1 if positions.size else 1
-        obstacles, goals = np.zeros((size, size), bool), None
-        maif = env_name.startswith("maif")
-        why = ("the recording predates TeamState.instance_id" if maif and k < 0 else
-               f"instance {k} is not in the installed {env_name} set" if maif else
-               f"{env_name} has no numbered instances")
-        note = f"map: unknown ({why}); robots on a blank grid"
-    images = [render_grid(obstacles, p, goals, cell_px) for p in positions]
-    return EpisodeFrames(episode, [t for t, _ in states], images, note)
+    st = episode_states(rec, episode)
+    obstacles, goals, note = episode_map(st.env_name, st.instance_id, st.positions)
+    images = [render_grid(obstacles, p, goals, cell_px) for p in st.positions]
+    return EpisodeFrames(episode, st.steps, images, note)

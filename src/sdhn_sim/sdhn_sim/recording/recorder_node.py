@@ -66,6 +66,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
+from sdhn_sim.drops import DropKind
 from sdhn_sim.recording.reader import fresh_path
 from sdhn_sim.recording.rosbag2 import fill_history, type_hash_text
 from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg_schema
@@ -140,7 +141,7 @@ class VizWorker:
             try:
                 msg = deserialize_message(data, message_class(type_name))
             except Exception:  # malformed CDR: counted like any message that cannot be drawn
-                self.deriver.dropped[f"{kind}/undecodable"] += 1
+                self.deriver.dropped[f"{kind}/{DropKind.UNDECODABLE}"] += 1
                 continue
             try:
                 out = self.deriver.derive(kind, msg, log_time_ns)
@@ -175,10 +176,7 @@ class RecorderNode(Node):
         super().__init__("recorder", context=context)
         p = declare(self, PARAMETERS)
         output, viz = str(p["output"]), bool(p["viz"])
-        try:
-            self.ns = topics.check_team_ns(p["team_ns"])
-        except topics.NamespaceError as e:
-            raise ConfigError(str(e)) from None
+        self.ns = topics.check_team_ns(p["team_ns"])
         requested = Path(output or f"runs/recording-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
         bag_dir = requested.suffix != ".mcap"
         if bag_dir and not requested.name.strip("."):

@@ -1,5 +1,6 @@
-"""``sdhn_sim replay FILE [--summary] [--rate X] [--export-episode K --out DIR] [--add-viz
-[--out NEW.mcap]] [--foxglove [--host H] [--port P] [--rate X] [--loop]]``.
+"""``sdhn_sim replay FILE [--summary] [--rate X] [--export-episode K [--out DIR] [--gif OUT.gif]
+[--mp4 OUT.mp4] [--hypergraph]] [--add-viz [--out NEW.mcap]] [--foxglove [--host H] [--port P]
+[--rate X] [--loop]]``.
 
 --summary          per-episode table: the simulator's EpisodeSummary messages, recomputed from the
                    recorded TeamState for episodes without one (source column says which).
@@ -14,8 +15,14 @@
                    subscriber slows the replay instead of losing messages. Messages not
                    acknowledged within --ack-timeout are counted, named in one line, and the exit
                    code is 1.
---export-episode K PNG frames (frame_<step>.png) of episode K rendered from the recorded TeamState
---out DIR          positions, on the MAIF map of the recorded instance id (recording.reader).
+--export-episode K episode K rendered from the recorded TeamState positions, on the MAIF map of
+--out DIR          the recorded instance id (recording.reader): PNG frames (frame_<step>.png) into
+--gif OUT.gif      DIR, and/or an animated GIF / an MP4 with goals outlined, trails (--trail N
+--mp4 OUT.mp4      steps), a caption with the outcome and, with --hypergraph, the latest sampled
+                   hypergraph (recording.animation); --fps F (default 8), --every K (every K-th
+                   step and the last; default 1), --cell-px (default 16 for PNG, 10 for GIF/MP4).
+                   K = completed: the last episode whose EpisodeSummary says completed (the last
+                   finished one, said so, when none completed).
 --add-viz          write a copy with the viz channels (/viz/scene, /viz/hypergraph,
 --out NEW.mcap     /viz/hypergraph/p_h, /viz/metrics, /viz/episodes) derived from the recorded
                    team messages, for a recording made with viz:=false (default NEW:
@@ -25,7 +32,9 @@
                    WebSocket at ws://HOST:PORT (--host 127.0.0.1, --port 8765, 0 = any free port),
                    paced by the recorded log times at --rate X (default 1); playback starts when
                    a client subscribes, ends after the last state (--loop: starts over until
-                   Ctrl-C). A port in use is one line and exit code 2.
+                   Ctrl-C or SIGTERM, which both end with one line and exit code 0). At most 8
+                   viewers at once, each logged (the viz node's server). A port in use (--port)
+                   or an address that is not this machine's (--host) is one line, exit code 2.
 
 With no action flag it prints the topics and message counts. Exit codes: 0 done (also for a
 truncated recording: the readable part is used and one line says where it stops), 1 the requested
@@ -36,10 +45,9 @@ arguments, a port in use, or not an MCAP file.
 from __future__ import annotations
 
 import argparse
-import json
 import os
+import signal
 import sys
-import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -60,6 +68,33 @@ MIN_RATE, MAX_RATE = 0.001, 1000.0
 
 
 
+def episode_spec(text: str) -> int | str:
+    """An episode number, or ``completed`` (resolved against the recording by ``pick_episode``)."""
+    if text == "completed":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}; allowed: an episode number or "
+                                         "'completed'") from None
+
+
+def pick_episode(rec: Recording, spec: int | str) -> int | None:
+    """The episode ``--export-episode`` names; None (after one line) when there is none."""
+    if isinstance(spec, int):
+        return spec
+    rows = episode_rows(rec)
+    done = [r.episode for r, _ in rows if r.completed]
+    if done:
+        return done[-1]
+    if rows:
+        print(f"replay: no recorded episode completed; exporting the last finished one "
+              f"(episode {rows[-1].result.episode})")
+        return rows[-1].result.episode
+    print(f"replay: error: {rec.path} has no finished episode to export", file=sys.stderr)
+    return None
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="replay", description="Summarise, republish or render "
                                      "an sdhn MCAP recording.")
@@ -71,11 +106,25 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="with --rate: seconds to wait for subscribers before publishing")
     parser.add_argument("--ack-timeout", type=float, default=10.0, metavar="S",
                         help="with --rate: seconds to wait for subscribers' acknowledgements")
-    parser.add_argument("--export-episode", type=int, default=None, metavar="K",
-                        help="write PNG frames of episode K (needs --out)")
+    parser.add_argument("--export-episode", type=episode_spec, default=None, metavar="K",
+                        help="render episode K (a number, or 'completed': the last episode "
+                        "whose summary says completed, else the last one) with --out, --gif "
+                        "or --mp4")
     parser.add_argument("--out", type=Path, default=None, metavar="PATH",
                         help="directory for --export-episode frames; file for --add-viz")
-    parser.add_argument("--cell-px", type=int, default=16, help="pixels per grid cell in frames")
+    parser.add_argument("--cell-px", type=int, default=None,
+                        help="pixels per grid cell in frames (default 16 for PNG, 10 for GIF/MP4)")
+    parser.add_argument("--gif", type=Path, default=None, metavar="OUT.gif",
+                        help="with --export-episode: write an animated GIF of the episode")
+    parser.add_argument("--mp4", type=Path, default=None, metavar="OUT.mp4",
+                        help="with --export-episode: write an MP4 of the episode")
+    parser.add_argument("--fps", type=float, default=8.0, help="GIF/MP4 frames per second")
+    parser.add_argument("--every", type=int, default=1, metavar="K",
+                        help="GIF/MP4: every K-th step (and always the last)")
+    parser.add_argument("--trail", type=int, default=8, metavar="N",
+                        help="GIF/MP4: steps of trail behind each robot (0 = none)")
+    parser.add_argument("--hypergraph", action="store_true",
+                        help="GIF/MP4: draw the latest recorded sampled hypergraph")
     parser.add_argument("--add-viz", action="store_true",
                         help="write a copy with the derived /viz/* channels (--out NEW.mcap)")
     parser.add_argument("--foxglove", action="store_true",
@@ -96,8 +145,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             parser.error(f"--{name.replace('_', '-')}: {getattr(args, name)}; allowed: 0..3600")
     if args.export_episode is not None and args.add_viz:
         parser.error("--export-episode and --add-viz: one at a time (each takes --out)")
-    if args.export_episode is not None and args.out is None:
-        parser.error("--export-episode K and --out DIR go together")
+    animated = args.gif is not None or args.mp4 is not None
+    if args.export_episode is not None and args.out is None and not animated:
+        parser.error("--export-episode K needs --out DIR, --gif OUT.gif or --mp4 OUT.mp4")
+    if (animated or args.hypergraph) and args.export_episode is None:
+        parser.error("--gif, --mp4 and --hypergraph go with --export-episode K")
+    for flag, path, suffix in (("--gif", args.gif, ".gif"), ("--mp4", args.mp4, ".mp4")):
+        if path is not None and path.suffix.lower() != suffix:
+            parser.error(f"{flag}: {path}; allowed: a path ending in {suffix}")
+    if not 0.5 <= args.fps <= 60:
+        parser.error(f"--fps: {args.fps}; allowed: 0.5..60")
+    if args.every < 1:
+        parser.error(f"--every: {args.every}; allowed: >= 1")
+    if args.trail < 0:
+        parser.error(f"--trail: {args.trail}; allowed: >= 0")
     if args.out is not None and args.export_episode is None and not args.add_viz:
         parser.error("--out goes with --export-episode K or --add-viz")
     if args.add_viz and args.out is not None and args.out.suffix != ".mcap":
@@ -106,7 +167,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--port: {args.port}; allowed: 0..65535 (0 = any free port)")
     if (args.host != "127.0.0.1" or args.port != 8765 or args.loop) and not args.foxglove:
         parser.error("--host, --port and --loop go with --foxglove")
-    if args.cell_px < 3:
+    if args.cell_px is not None and args.cell_px < 3:
         parser.error(f"--cell-px: {args.cell_px}; allowed: >= 3")
     return args
 
@@ -128,9 +189,15 @@ def main(argv: list[str] | None = None) -> int:
     code = 0
     if args.summary:
         print(format_rows(episode_rows(rec)))
+    if args.export_episode is not None:
+        args.export_episode = pick_episode(rec, args.export_episode)
+        if args.export_episode is None:
+            return 1
     try:
-        if args.export_episode is not None:
-            code = export(rec, args.export_episode, args.out, args.cell_px)
+        if args.export_episode is not None and args.out is not None:
+            code = export(rec, args.export_episode, args.out, args.cell_px or 16)
+        if args.export_episode is not None and code == 0 and (args.gif or args.mp4):
+            code = export_animation(rec, args)
         if args.add_viz:
             code = max(code, add_viz(rec, args.out))
     except OSError as e:  # a full disk, a read-only or missing directory
@@ -173,6 +240,35 @@ def export(rec: Recording, episode: int, out: Path, cell_px: int) -> int:
     return 0
 
 
+def export_animation(rec: Recording, args: argparse.Namespace) -> int:
+    """``--gif`` / ``--mp4`` of ``--export-episode`` (recording.animation)."""
+    from sdhn_sim.recording.animation import (
+        NoHypergraphError,
+        episode_animation,
+        write_gif,
+        write_mp4,
+    )
+
+    try:
+        anim = episode_animation(rec, args.export_episode, cell_px=args.cell_px or 10,
+                                 trail=args.trail, hypergraph=args.hypergraph, every=args.every)
+    except KeyError:
+        print(f"replay: error: episode {args.export_episode} has no recorded state",
+              file=sys.stderr)
+        return 1
+    except NoHypergraphError as e:
+        print(f"replay: error: --hypergraph: {e}", file=sys.stderr)
+        return 1
+    h, w = anim.frames[0].shape[:2]
+    graphs = f", hypergraph on {anim.hypergraph_frames}" if args.hypergraph else ""
+    for path, write in ((args.gif, write_gif), (args.mp4, write_mp4)):
+        if path is not None:
+            write(anim, path, args.fps)
+            print(f"wrote {path}: episode {anim.episode}, {len(anim.frames)} frames "
+                  f"({w}x{h}, {args.fps:g} fps{graphs}), {anim.outcome}; {anim.map_note}")
+    return 0
+
+
 def add_viz(rec: Recording, out: Path | None) -> int:
     """Write a copy of ``rec`` with the derived viz channels (see ``write_with_viz``)."""
     have = viz_topics(rec)
@@ -181,6 +277,10 @@ def add_viz(rec: Recording, out: Path | None) -> int:
         print(f"replay: {rec.path} already has viz channels ({counts}); nothing written")
         return 0
     requested = out or rec.path.with_name(f"{rec.path.stem}-viz.mcap")
+    if not requested.parent.is_dir():  # never create directories the user did not ask for
+        print(f"replay: error: --out: {requested.parent} is not a directory; allowed: a new "
+              ".mcap file in an existing directory", file=sys.stderr)
+        return 2
     target = fresh_path(requested)  # never the input, never an existing file
     # Atomic: written beside the target, renamed when complete; a failed write (a full disk)
     # leaves nothing (sdhn_sim.litter cleans a killed writer's temporary file).
@@ -203,11 +303,12 @@ def add_viz(rec: Recording, out: Path | None) -> int:
 
 
 def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool) -> int:
-    """Serve the viz channels derived from ``rec`` on a Foxglove WebSocket, paced by log time."""
-    import foxglove
-
+    """Serve the viz channels derived from ``rec`` on a Foxglove WebSocket, paced by log time.
+    The live viz node's server (its only listening socket, at most ``REPLAY_MAX_CLIENTS``
+    viewers, each logged). SIGTERM stops it as Ctrl-C does: one line, exit 0."""
     from sdhn_sim.recording.reader import decode, team_kind, team_namespace
-    from sdhn_sim.viz.channels import VIZ_TOPICS, VizDeriver, channel_specs
+    from sdhn_sim.viz.channels import VizDeriver
+    from sdhn_sim.viz.server import BindError, VizServer, ws_url
 
     ns = team_namespace(rec)
     if ns is None:
@@ -216,47 +317,21 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
     team = [(m, kind) for m in rec.messages
             if (kind := team_kind(m.topic, m.type_name, m.encoding, ns)) is not None]
     team.sort(key=lambda mk: mk[0].log_time_ns)
-    from foxglove.websocket import ChannelView, Client, ServerListener
-
-    class FirstSubscriber(ServerListener):
-        """Set once any client subscribes to any channel: playback waits for a viewer."""
-
-        def __init__(self) -> None:
-            self.subscribed = threading.Event()
-
-        def on_subscribe(self, client: Client, channel: ChannelView) -> None:
-            self.subscribed.set()
-
-    fox = foxglove.Context()
-    listener = FirstSubscriber()
     try:
-        server = foxglove.start_server(name=f"sdhn replay {rec.path.name}", host=host, port=port,
-                                       context=fox, server_listener=listener)
-    except RuntimeError as error:
-        reason = str(error).split(": ", 1)[-1]
-        print(f"replay: error: --port: cannot serve on {host}:{port} ({reason})",
-              file=sys.stderr)
+        server = VizServer(host, port, REPLAY_MAX_CLIENTS, f"sdhn replay {rec.path.name}",
+                           lambda line: print(f"replay: {line}", flush=True))
+    except BindError as error:
+        print(f"replay: error: --{error.field}: {error.message}", file=sys.stderr)
         return 2
-    channels = {}
-    for topic in VIZ_TOPICS:  # as the live viz node advertises them
-        spec = channel_specs()[topic]
-        if spec.message_encoding == "json":
-            channels[topic] = foxglove.Channel(topic, schema=json.loads(spec.schema_data),
-                                               context=fox)
-        else:
-            schema = foxglove.Schema(name=spec.schema_name, encoding=spec.schema_encoding,
-                                     data=spec.schema_data)
-            channels[topic] = foxglove.Channel(topic, schema=schema,
-                                               message_encoding=spec.message_encoding,
-                                               context=fox)
     span = (team[-1][0].log_time_ns - team[0][0].log_time_ns) / 1e9 if team else 0.0
     states = sum(1 for _, k in team if k == "state")
-    print(f"replay: serving {rec.path} on ws://{host}:{server.port} ({states} states, "
+    print(f"replay: serving {rec.path} on {ws_url(host, server.port)} ({states} states, "
           f"{span:.1f} s recorded, rate {rate}x); playback starts when a client subscribes, "
           "Ctrl-C stops", flush=True)
     sent = 0
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        while not listener.subscribed.wait(0.1):
+        while not server.new_subscriber.wait(0.1):
             pass
         while True:
             deriver = VizDeriver()
@@ -271,7 +346,7 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
                 except Exception:  # malformed CDR in the file: skip that message
                     continue
                 for v in out:
-                    channels[v.topic].log(v.data)
+                    server.log(v.topic, v.data, v.log_time_ns)
                     sent += 1
             print(f"replay: served {sent} viz messages ({states} states) in "
                   f"{time.monotonic() - start:.2f} s", flush=True)
@@ -281,8 +356,18 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
     except KeyboardInterrupt:
         print(f"replay: stopped after {sent} viz messages", flush=True)
     finally:
-        server.stop()
+        signal.signal(signal.SIGTERM, previous)
+        server.close()
     return 0
+
+
+REPLAY_MAX_CLIENTS = 8
+"""Most viewers of ``replay --foxglove`` at once (as the viz node's default ``max_clients``)."""
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    """SIGTERM (a service manager, ``kill``): stop as Ctrl-C does, with the closing line."""
+    raise KeyboardInterrupt
 
 
 def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.0) -> int:
@@ -294,14 +379,14 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
     from rclpy.duration import Duration
     from rclpy.qos import ReliabilityPolicy
 
+    from sdhn_sim.data_files import fastdds_replay_profile
     from sdhn_sim.recording.reader import current_cdr
     from sdhn_sim.recording.rosbag2 import recorded_profile
     from sdhn_sim.recording.schema import message_class
     from sdhn_sim.ros import topics
     from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
-    profile_file = Path(__file__).resolve().parent.parent / "data" / "fastdds-replay.xml"
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(profile_file))
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(fastdds_replay_profile()))
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("replay", context=context)

@@ -33,6 +33,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from sdhn_sim.litter import clean_fastdds_shm
+from sdhn_sim.ros import topics
 from sdhn_sim.ros.status import write_ready
 
 
@@ -70,7 +71,7 @@ def run_node(
     try:
         try:
             node = make_node(context, rclpy.utilities.remove_ros_args(args)[1:])
-        except ConfigError as error:
+        except (ConfigError, topics.NamespaceError) as error:
             print(f"{prog}: error: {error}", file=sys.stderr)
             return 2
         # Everything built so far (imports: rclpy, NumPy, torch in the trainer) lives as long as

@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sdhn_sim import bounded_json
+
 READY_ENV = "SDHN_READY_FILE"
 
 
@@ -62,7 +64,8 @@ def read_statuses(status_dir: Path) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     for path in sorted(status_dir.glob("*" + STATUS_SUFFIX)):
         try:
-            obj = json.loads(path.read_text())
+            obj = bounded_json.loads(path.read_bytes(), finite=False,
+                                      max_int_digits=bounded_json.STATE_FILE_INT_DIGITS)
         except (OSError, ValueError):
             continue
         if isinstance(obj, dict):
@@ -104,7 +107,8 @@ class EventReader:
         events = []
         for line in data[:cut].splitlines():
             try:
-                obj = json.loads(line)
+                obj = bounded_json.loads(
+                    line, finite=False, max_int_digits=bounded_json.STATE_FILE_INT_DIGITS)
             except ValueError:
                 continue  # never written by our writer; skip rather than stop the supervisor
             if isinstance(obj, dict) and isinstance(obj.get("event"), str):

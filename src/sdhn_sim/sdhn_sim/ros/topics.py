@@ -38,7 +38,9 @@ _ROBOT_TOPIC = re.compile(r"^robot_(\d+)/(obs|action)$")
 
 
 class NamespaceError(ValueError):
-    """A team namespace that breaks the rule; the message says the rule."""
+    """A team namespace that breaks the rule; the message says the rule. A node that raises it
+    while being built stops like on any bad parameter (``sdhn_sim.ros.runner``: one line,
+    exit 2)."""
 
 
 def is_team_ns(value: object) -> bool:
@@ -46,10 +48,11 @@ def is_team_ns(value: object) -> bool:
     return isinstance(value, str) and bool(_TEAM_NS.match(value)) and "__" not in value
 
 
-def check_team_ns(value: object) -> str:
-    """The one namespace rule (see :data:`TEAM_NS_RULE`); returns ``value`` unchanged."""
+def check_team_ns(value: object, field: str = "team_ns") -> str:
+    """The one namespace check, made once where a node (or the launcher) takes its namespace;
+    returns ``value`` unchanged. ``field`` names where the value came from in the error."""
     if not is_team_ns(value):
-        raise NamespaceError(f"team_ns: got {value!r}; allowed: {TEAM_NS_RULE}")
+        raise NamespaceError(f"{field}: got {value!r}; allowed: {TEAM_NS_RULE}")
     assert isinstance(value, str)
     return value
 
@@ -74,8 +77,9 @@ def robot_of(relative: str) -> tuple[int, str] | None:
 
 
 def absolute(team_ns: str, relative: str) -> str:
-    """``relative`` resolved under ``team_ns`` (checked by the namespace rule)."""
-    return f"{check_team_ns(team_ns)}/{relative}"
+    """``relative`` resolved under ``team_ns``, a namespace already checked by
+    :func:`check_team_ns` where it was taken (it is not checked again per topic)."""
+    return f"{team_ns}/{relative}"
 
 
 def relative_to(team_ns: str, topic: str) -> str | None:

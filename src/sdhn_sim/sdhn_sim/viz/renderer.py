@@ -11,6 +11,8 @@ from typing import Any
 
 from foxglove.messages import RawImage, SceneUpdate
 
+from sdhn_sim.drops import DropKind
+from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.viz.draw import hypergraph_entities, p_h_image, robot_entities, static_entities
 from sdhn_sim.viz.world import (
@@ -87,22 +89,12 @@ class VizRenderer:
         name = str(msg.env_name)
         if self.env and name != self.env:
             raise BadInput(
-                "env_mismatch", f"episode of {name!r} but this viewer draws {self.env!r}"
+                DropKind.ENV_MISMATCH, f"episode of {name!r} but this viewer draws {self.env!r}"
             )
-        completed = bool(msg.completed)
-        out: dict[str, Any] = {
-            "env": name,
-            "episode": int(msg.episode),
-            "length": int(msg.length),
-            "completed": completed,
-            "makespan": int(msg.makespan) if completed else None,
-            "episode_return": float(msg.episode_return),
-            "collisions": int(msg.collisions),
-            "formation_error": float(msg.formation_error),
-            "missed_actions": int(msg.missed_actions),
-            "policy_version": int(msg.policy_version),
-            "instance_id": int(msg.instance_id),
-        }
+        r = EpisodeResult.from_message(msg)
+        # the JSON the episode channel serves: the result's fields, the name as "env"
+        out: dict[str, Any] = {"env": r.env_name, **r.to_event()}
+        del out["env_name"]
         m = self._m
         m.last_return, m.last_makespan = out["episode_return"], out["makespan"]
         m.last_collisions = out["collisions"]

@@ -1,12 +1,13 @@
 """Viz node: serves the team's state, hypergraphs and metrics to Foxglove over a WebSocket.
 
 Subscribes to ``{team_ns}/state``, ``{team_ns}/hypergraph`` and ``{team_ns}/episode`` and serves a
-Foxglove WebSocket (Foxglove SDK for Python; protobuf ``foxglove.*`` schemas and JSON) with channels
+Foxglove WebSocket (``sdhn_sim.viz.server``: the only socket it listens on, with a connection
+limit and a log of who connects; protobuf ``foxglove.*`` schemas and JSON) with channels
 ``/viz/scene``, ``/viz/hypergraph`` (SceneUpdate), ``/viz/hypergraph/p_h`` (RawImage),
 ``/viz/metrics`` and ``/viz/episodes`` (JSON). Parsing, drawing and state live in ``world``,
 ``draw`` and ``renderer`` (ROS-free).
 
-Nothing is built or encoded for a channel no client subscribes to (``Channel.has_sinks``): the
+Nothing is built or encoded for a channel no client subscribes to (``VizServer.has_sinks``): the
 callbacks only validate and keep a short trail. The scene is sent at most ``max_rate`` times per
 second (a viewer cannot show more); the static part (floor, obstacles, goals) only when a client
 subscribes, the episode or map changes, or every ``STATIC_PERIOD_S``.
@@ -15,14 +16,11 @@ subscribes, the episode or map changes, or every ``STATIC_PERIOD_S``.
 from __future__ import annotations
 
 import ipaddress
-import threading
+import json
 import time
 from collections.abc import Sequence
 from typing import Any
 
-import foxglove
-from foxglove.channels import RawImageChannel, SceneUpdateChannel
-from foxglove.websocket import ChannelView, Client, ServerListener
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.node import Node
@@ -34,33 +32,16 @@ from sdhn_sim.ros.params import declare, integer, string
 from sdhn_sim.ros.qos import SENSOR, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
-from sdhn_sim.viz.channels import EPISODE_SCHEMA, METRICS_SCHEMA
-from sdhn_sim.viz.gate import Gate
 from sdhn_sim.viz.renderer import VizRenderer
+from sdhn_sim.viz.server import BindError, VizServer, ws_url
 from sdhn_sim.viz.world import BadInput
 
 STATIC_PERIOD_S = 5.0
 
 
-class _Subscriptions(ServerListener):
-    """Foxglove server listener: notes that a client subscribed, so statics are re-sent."""
-
-    def __init__(self) -> None:
-        self.new_subscriber = threading.Event()
-
-    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
-        self.new_subscriber.set()
-
-    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
-        return None
-
-
 def _check_params(team_ns: str, env: str, host: str) -> None:
     """What the descriptors cannot say: the namespace rule, a known env, a non-empty host."""
-    try:
-        topics.check_team_ns(team_ns)
-    except topics.NamespaceError as e:
-        raise ConfigError(str(e)) from None
+    topics.check_team_ns(team_ns)
     if env and env not in env_names():
         raise ConfigError(f"env: unknown environment {env!r}; allowed: '' (from messages), "
                           f"{', '.join(env_names())}")
@@ -95,28 +76,11 @@ class VizNode(Node):
         max_rate = self._rate("max_rate", 30.0)
         _check_params(team_ns, env, host)
 
-        self.fox = foxglove.Context()
-        self.listener = _Subscriptions()
-        try:  # the SDK server on loopback, behind the gate (connection limit, who connects)
-            self.server = foxglove.start_server(
-                name="sdhn viz", host="127.0.0.1", port=0, context=self.fox,
-                server_listener=self.listener,
-            )
-        except RuntimeError as error:
-            reason = str(error).split(": ", 1)[-1]
-            raise ConfigError(f"port: cannot serve on 127.0.0.1 ({reason})") from None
         try:
-            self.gate = Gate(host, port, self.server.port, int(p["max_clients"]),
-                             self.get_logger().info)
-        except OSError as error:
-            self.server.stop()
-            raise ConfigError(f"port: cannot serve on {host}:{port} "
-                              f"({error.strerror or error})") from None
-        self.scene_ch = SceneUpdateChannel(VIZ_SCENE, context=self.fox)
-        self.hyper_ch = SceneUpdateChannel(VIZ_HYPERGRAPH, context=self.fox)
-        self.p_h_ch = RawImageChannel(VIZ_P_H, context=self.fox)
-        self.metrics_ch = foxglove.Channel(VIZ_METRICS, schema=METRICS_SCHEMA, context=self.fox)
-        self.episode_ch = foxglove.Channel(VIZ_EPISODES, schema=EPISODE_SCHEMA, context=self.fox)
+            self.server = VizServer(host, port, int(p["max_clients"]), "sdhn viz",
+                                    self.get_logger().info)
+        except BindError as error:
+            raise ConfigError(f"{error.field}: {error.message}") from None
 
         self.renderer = VizRenderer(env=env, trail_length=trail)
         self.min_period = 1.0 / max_rate if max_rate > 0 else 0.0
@@ -137,7 +101,7 @@ class VizNode(Node):
             self.get_logger().warning(f"serving beyond loopback on {host}: anyone who can reach "
                                       "it can watch")
         self.get_logger().info(
-            f"ready: foxglove ws://{host}:{self.gate.port} team_ns={ns} "
+            f"ready: foxglove {ws_url(host, self.server.port)} team_ns={ns} "
             f"env={env or '(from msgs)'}"
         )
 
@@ -168,23 +132,22 @@ class VizNode(Node):
         if now - self.last_scene < self.min_period:
             return
         self.last_scene = now
-        if self.scene_ch.has_sinks():
+        if self.server.has_sinks(VIZ_SCENE):
             key = (frame.env_name, frame.episode, 0)
             estimate = self.renderer.map_estimate()
             exact = estimate is None or estimate.exact
             with_static = (
                 key != self.static_key
                 or not exact
-                or self.listener.new_subscriber.is_set()
+                or self.server.new_subscriber.is_set()
                 or now - self.last_static > STATIC_PERIOD_S
             )
             if with_static:
-                self.listener.new_subscriber.clear()
+                self.server.new_subscriber.clear()
                 self.static_key, self.last_static = key, now
-            self.scene_ch.log(self.renderer.scene(with_static=with_static))
-            self.encoded += 1
-        if self.metrics_ch.has_sinks():
-            self.metrics_ch.log(self.renderer.metrics())
+            self.send(VIZ_SCENE, self.renderer.scene(with_static=with_static).encode())
+        if self.server.has_sinks(VIZ_METRICS):
+            self.send(VIZ_METRICS, _json(self.renderer.metrics()))
 
     def on_hypergraph(self, msg: Hypergraph) -> None:
         try:
@@ -192,16 +155,14 @@ class VizNode(Node):
         except BadInput as error:
             self.drop("hypergraph", error)
             return
-        if self.hyper_ch.has_sinks():
+        if self.server.has_sinks(VIZ_HYPERGRAPH):
             scene = self.renderer.hypergraph_scene()
             if scene is not None:
-                self.hyper_ch.log(scene)
-                self.encoded += 1
-        if self.p_h_ch.has_sinks():
+                self.send(VIZ_HYPERGRAPH, scene.encode())
+        if self.server.has_sinks(VIZ_P_H):
             image = self.renderer.p_h_image()
             if image is not None:
-                self.p_h_ch.log(image)
-                self.encoded += 1
+                self.send(VIZ_P_H, image.encode())
 
     def on_episode(self, msg: EpisodeSummary) -> None:
         try:
@@ -209,14 +170,21 @@ class VizNode(Node):
         except BadInput as error:
             self.drop("episode", error)
             return
-        if self.episode_ch.has_sinks():
-            self.episode_ch.log(summary)
+        if self.server.has_sinks(VIZ_EPISODES):
+            self.server.log(VIZ_EPISODES, _json(summary), time.time_ns())
+
+    def send(self, topic: str, data: bytes) -> None:
+        self.server.log(topic, data, time.time_ns())
+        self.encoded += 1
 
     def stop(self) -> None:
-        self.gate.close()
-        self.server.stop()
+        self.server.close()
         dropped = ", ".join(f"{k}={v}" for k, v in sorted(self.dropped.items())) or "none"
         self.get_logger().info(f"served {self.encoded} encoded messages; dropped: {dropped}")
+
+
+def _json(d: dict[str, Any]) -> bytes:
+    return json.dumps(d, separators=(",", ":")).encode()
 
 
 def _on_stop(node: Any) -> None:

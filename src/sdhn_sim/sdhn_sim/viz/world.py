@@ -31,9 +31,10 @@ import numpy as np
 import numpy.typing as npt
 from foxglove.messages import Timestamp
 
+from sdhn_sim.drops import DropKind
 from sdhn_sim.envs.maif import COORD_FEATURES, OBS_SIZE, RADIUS, WINDOW
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS, MaifConfig, load_instances
-from sdhn_sim.envs.registry import RWARE_TASKS, env_names
+from sdhn_sim.envs.registry import RWARE_TASKS, env_names, rware_task_size
 
 FloatArray = npt.NDArray[np.float32]
 IntArray = npt.NDArray[np.int64]
@@ -42,7 +43,7 @@ IntArray = npt.NDArray[np.int64]
 class BadInput(ValueError):
     """A message that cannot be drawn; ``kind`` is the counter it is dropped under."""
 
-    def __init__(self, kind: str, detail: str) -> None:
+    def __init__(self, kind: DropKind, detail: str) -> None:
         super().__init__(f"{kind}: {detail}")
         self.kind = kind
         self.detail = detail
@@ -106,7 +107,7 @@ RWARE_YAW = (math.pi / 2, -math.pi / 2, math.pi, 0.0)  # up, down, left, right i
 
 @functools.lru_cache(maxsize=16)
 def world_info(env_name: str) -> WorldInfo:
-    """The static description of ``env_name``; raises ``BadInput('unknown_env')``."""
+    """The static description of ``env_name``; raises ``BadInput(DropKind.UNKNOWN_ENV)``."""
     if env_name in MAIF_CONFIGS:
         cfg = MAIF_CONFIGS[env_name]
         return WorldInfo(env_name, "maif", cfg.num_robots, OBS_SIZE, cfg.size, cfg.size, maif=cfg)
@@ -114,7 +115,7 @@ def world_info(env_name: str) -> WorldInfo:
         from sdhn_sim.envs.rware_env import make_rware_gym, rware_env_id
 
         n = RWARE_TASKS[env_name]
-        gym_env = make_rware_gym(rware_env_id(n), 500)
+        gym_env = make_rware_gym(rware_env_id(n, rware_task_size(env_name)), 500)
         raw = gym_env.unwrapped
         obs_size = int(gym_env.observation_space[0].shape[0])
         racks = np.asarray(raw.highways) == 0
@@ -124,7 +125,7 @@ def world_info(env_name: str) -> WorldInfo:
         return WorldInfo(
             env_name, "rware", n, obs_size, width, height, rware_racks=racks, rware_goals=goals
         )
-    raise BadInput("unknown_env", f"unknown environment {env_name!r}; known: {env_names()}")
+    raise BadInput(DropKind.UNKNOWN_ENV, f"unknown environment {env_name!r}; known: {env_names()}")
 
 
 @dataclass(frozen=True)
@@ -224,16 +225,18 @@ def parse_team_state(msg: Any, expected_env: str = "") -> TeamFrame:
     name = str(msg.env_name)
     world = world_info(name)
     if expected_env and name != expected_env:
-        raise BadInput("env_mismatch", f"state of {name!r} but this viewer draws {expected_env!r}")
+        raise BadInput(DropKind.ENV_MISMATCH,
+                       f"state of {name!r} but this viewer draws {expected_env!r}")
     n = int(msg.num_robots)
     if n != world.num_robots:
-        raise BadInput("wrong_size", f"num_robots={n}, {name} has {world.num_robots}")
+        raise BadInput(DropKind.WRONG_TEAM_SIZE, f"num_robots={n}, {name} has {world.num_robots}")
     state = _floats(msg.state)
     if state.size != n * world.obs_size:
-        raise BadInput("wrong_size", f"state has {state.size} floats, want {n}x{world.obs_size}")
+        raise BadInput(DropKind.WRONG_STATE_LENGTH,
+                       f"state has {state.size} floats, want {n}x{world.obs_size}")
     pos = _ints(msg.positions)
     if pos.size != 2 * n:
-        raise BadInput("wrong_size", f"positions has {pos.size} ints, want 2x{n}")
+        raise BadInput(DropKind.WRONG_SIZE, f"positions has {pos.size} ints, want 2x{n}")
     pos = pos.reshape(n, 2)
     if (
         pos[:, 0].min() < 0
@@ -241,9 +244,10 @@ def parse_team_state(msg: Any, expected_env: str = "") -> TeamFrame:
         or pos[:, 0].max() >= world.width
         or pos[:, 1].max() >= world.height
     ):
-        raise BadInput("out_of_grid", f"a position lies outside {world.width}x{world.height}")
+        raise BadInput(DropKind.OUT_OF_GRID,
+                       f"a position lies outside {world.width}x{world.height}")
     if not np.isfinite(state).all():
-        raise BadInput("not_finite", "state holds NaN or Inf")
+        raise BadInput(DropKind.NON_FINITE_STATE, "state holds NaN or Inf")
     return TeamFrame(
         world=world,
         episode=int(msg.episode),
@@ -287,23 +291,24 @@ def parse_hypergraph(msg: Any, num_robots: int | None = None) -> HyperFrame:
     """Validate a Hypergraph; ``num_robots`` (when known) must match N."""
     n, m = int(msg.num_robots), int(msg.num_hyperedges)
     if n < 1 or m < 1:
-        raise BadInput("wrong_size", f"hypergraph of {n}x{m}")
+        raise BadInput(DropKind.WRONG_SIZE, f"hypergraph of {n}x{m}")
     if num_robots is not None and n != num_robots:
-        raise BadInput("wrong_size", f"hypergraph for {n} robots, the team has {num_robots}")
+        raise BadInput(DropKind.WRONG_TEAM_SIZE,
+                       f"hypergraph for {n} robots, the team has {num_robots}")
     p_h = _floats(msg.p_h)
     if p_h.size != n * m:
-        raise BadInput("wrong_size", f"p_h has {p_h.size} floats, want {n}x{m}")
+        raise BadInput(DropKind.WRONG_SIZE, f"p_h has {p_h.size} floats, want {n}x{m}")
     if not np.isfinite(p_h).all() or p_h.min() < 0.0 or p_h.max() > 1.0:
-        raise BadInput("bad_value", "p_h outside [0, 1] or not finite")
+        raise BadInput(DropKind.BAD_VALUE, "p_h outside [0, 1] or not finite")
     inc = _bytes_u8(msg.incidence)
     incidence: npt.NDArray[np.uint8] | None = None
     if inc.size:
         if inc.size != n * m:
-            raise BadInput("wrong_size", f"incidence has {inc.size} entries, want {n}x{m}")
+            raise BadInput(DropKind.WRONG_SIZE, f"incidence has {inc.size} entries, want {n}x{m}")
         incidence = inc.reshape(n, m)
     skew = float(msg.skewness)
     if not math.isfinite(skew):
-        raise BadInput("bad_value", "skewness not finite")
+        raise BadInput(DropKind.BAD_VALUE, "skewness not finite")
     return HyperFrame(
         episode=int(msg.episode),
         step=int(msg.step),

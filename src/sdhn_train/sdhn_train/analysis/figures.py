@@ -568,7 +568,7 @@ def make_figures(logdir: Path, outdir: Path, scripted_instances: int | None = No
         written += ps
         if not ps:
             skipped.append(name)
-    md = [f"# Results from {logdir}", "",
+    md = [f"# Results of the {Path(logdir).name} suite", "",  # no machine path in docs
           "Success rate and makespan (steps to complete the formation), then return: final greedy "
           "evaluation on the training and the held-out instances (training episodes where a run "
           "has none); mean ± std over seeds; makespan over seeds that completed; NC = no seed "

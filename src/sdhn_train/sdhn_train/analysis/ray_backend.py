@@ -1,5 +1,5 @@
 """The experiment runner on a Ray cluster: each (method, task, seed) run is one Ray task that
-asks for the run's declared CPU count (``train.threads`` per learner process, times
+asks for the run's declared CPU count (``train.threads`` per data-parallel rank, times
 ``train.learner_processes``).
 
     run_experiments configs/suites/paper.yaml --budget paper --logdir /shared/runs/paper \\
@@ -97,7 +97,7 @@ def _ray_node() -> str | None:
 
 
 def _cpus(train: TrainConfig) -> int:
-    """CPUs a run uses: its intra-op threads in each of its learner processes."""
+    """CPUs a run uses: its intra-op threads in each of its data-parallel ranks."""
     return train.threads * train.learner_processes
 
 

@@ -359,7 +359,7 @@ class PPOLearner:
 
     def minibatch_envs(self, b: int) -> list[Tensor]:
         """One epoch's minibatches: a permutation of the b environments in
-        ``num_minibatches`` chunks (with learner processes: of this process's environments,
+        ``num_minibatches`` chunks (with data-parallel ranks: of this process's environments,
         the same chunk sizes in every process)."""
         num_mb = max(1, min(self.cfg.num_minibatches, b))
         return list(torch.from_numpy(self.rng.permutation(b)).chunk(num_mb))

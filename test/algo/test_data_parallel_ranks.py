@@ -1,4 +1,4 @@
-"""``train.learner_processes``: K = 2 data-parallel learner processes (real gloo processes on
+"""``train.learner_processes``: K = 2 data-parallel ranks (real gloo processes on
 localhost) give the K = 1 update on the same data, and a ``train`` run with them checkpoints and
 resumes.
 
@@ -24,7 +24,7 @@ from sdhn_sim.envs import make_env
 from sdhn_sim.envs.api import BatchedEnv
 from sdhn_train.cli import main as train_main
 from sdhn_train.config import Config, ConfigError, set_field, validate
-from sdhn_train.data_parallel import Group, LearnerProcessError, end_learner_process
+from sdhn_train.data_parallel import Group, RankFailedError, end_rank
 from sdhn_train.ranks import learner_ranks
 from sdhn_train.rollout import Rollout
 from sdhn_train.trainer import Trainer, rank_seed
@@ -74,7 +74,7 @@ def _rank(rank: int, algo: str, store: str, rollout: str, out: str) -> None:
         traceback.print_exc()  # os._exit below would swallow it
     finally:
         group.close()
-        end_learner_process(code)  # as the trainer's ranks end
+        end_rank(code)  # as the trainer's ranks end
 
 
 @pytest.mark.parametrize("algo", ["sdhn", "mappo"])
@@ -104,7 +104,7 @@ def test_two_learner_processes_give_the_one_process_update(algo: str, tmp_path: 
         p.start()
     for p in procs:
         p.join(timeout=120)
-    assert [p.exitcode for p in procs] == [0, 0], "a learner process failed"
+    assert [p.exitcode for p in procs] == [0, 0], "a data-parallel rank failed"
     with np.load(tmp_path / "rank0.npz") as z:
         got = {k: z[k] for k in z.files}
     assert want.keys() == got.keys()
@@ -174,7 +174,7 @@ def _broken_in_rank_1(name: str, num_envs: int, seed: int, **kw: object) -> Batc
 def test_a_failed_learner_process_ends_the_run_with_one_error(tmp_path: Path) -> None:
     cfg = _cfg("mappo")
     cfg.train.learner_processes = 2
-    expect = "learner process 1 failed: ValueError: no environments in rank 1"
-    with (pytest.raises(LearnerProcessError, match=expect),
+    expect = "data-parallel rank 1 failed: ValueError: no environments in rank 1"
+    with (pytest.raises(RankFailedError, match=expect),
           learner_ranks(cfg, tmp_path, env_factory=_broken_in_rank_1) as group):
         Trainer(cfg, _short, run_dir=tmp_path, group=group)

@@ -21,7 +21,7 @@ one raw frame per array, received straight into a preallocated NumPy array
                       "error"    a message; ``config`` = true when the run_dir/resume or
                                  actor.init_from is unusable
 
-In the learner process a receiver thread drains the pipe at once (so the node's sender never
+In the learner offload process a receiver thread drains the pipe at once (so the node's sender never
 waits on an update in progress) into a queue of at most ``LEARNER_QUEUE`` rollouts; when the
 learner falls that far behind, the oldest waiting rollout is dropped and counted (freshest data
 first), and the count travels back with the next update.
@@ -48,13 +48,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from sdhn_sim.drops import DropKind
 from sdhn_train.rollout import Rollout
 from sdhn_train.transitions import AssembledRollout
 
-LEARNER_QUEUE = 4  # rollouts waiting in the learner process; beyond that the oldest is dropped
+LEARNER_QUEUE = 4  # rollouts waiting in the learner offload process; beyond that the oldest is
+# dropped
 LEARNER_NICE = 10  # the loop's processes come first on a busy machine
-ROLLOUT_DROPPED = "rollout dropped (learner busy)"
-PAST_TOTAL = "rollout after total_steps (not learned)"
 
 Arrays = dict[str, npt.NDArray[Any]]
 ROLLOUT_FIELDS = ("obs", "state", "actions", "log_probs", "rewards", "terminated", "truncated",
@@ -148,7 +148,8 @@ def _weights(header: dict[str, Any], arrays: Arrays) -> WeightsBlob:
 
 
 class LearnerClient:
-    """Starts the learner process and talks to it from the node, without blocking the caller:
+    """Starts the learner offload process and talks to it from the node, without blocking the
+    caller:
     ``submit`` only queues (a sender thread writes the pipe); results arrive on a receiver thread
     that calls ``on_update`` / ``on_error`` (those must only publish and log)."""
 
@@ -166,12 +167,12 @@ class LearnerClient:
         self._from_child_w.close()
         if not self._from_child_r.poll(start_timeout):
             self.process.terminate()
-            raise LearnerStartError(f"the learner process did not start within "
+            raise LearnerStartError(f"the learner offload process did not start within "
                                     f"{start_timeout:.0f} s", config=False)
         try:
             header, arrays = recv_message(self._from_child_r)
         except EOFError:
-            raise LearnerStartError(f"the learner process died at start (exit code "
+            raise LearnerStartError(f"the learner offload process died at start (exit code "
                                     f"{self.process.exitcode})", config=False) from None
         if header["kind"] == "error":
             self.process.join(timeout=5.0)
@@ -213,7 +214,7 @@ class LearnerClient:
                 header, arrays = recv_message(self._from_child_r)
             except (EOFError, OSError):
                 if self.process.exitcode not in (None, 0):
-                    self.on_error(f"the learner process exited with code "
+                    self.on_error(f"the learner offload process exited with code "
                                   f"{self.process.exitcode}")
                 return
             if header["kind"] == "error":
@@ -244,12 +245,12 @@ class LearnerClient:
         return self.process.exitcode
 
 
-# -- the learner process -----------------------------------------------------------------------
+# -- the learner offload process ---------------------------------------------------------------
 
 
 def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], run_dir: str,
                  *, resume: bool, parent_pid: int, total_steps: int = 0) -> None:
-    """Entry point of the learner process (spawned): build the learner, then train on every
+    """Entry point of the learner offload process (spawned): build the learner, then train on every
     rollout that arrives until "stop" or the node's end of the pipe closes; with ``total_steps``
     > 0, only until it has learned from that many transitions (later rollouts are counted)."""
     # Ctrl-C in a terminal reaches the whole process group: the node stops the learner itself
@@ -264,8 +265,8 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
         return  # the node died before the line above took effect
     with contextlib.suppress(OSError):
         os.nice(LEARNER_NICE)
-    from sdhn_sim.envs.api import EpisodeStats
     from sdhn_sim.envs.registry import make_env  # heavy imports only in the child
+    from sdhn_sim.episode import EpisodeResult
     from sdhn_train import checkpoint as ckpt
     from sdhn_train.config import Config, ConfigError, apply_dict
     from sdhn_train.env_features import resolve_features, wrap_features
@@ -319,7 +320,7 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
                 else:
                     if len(pending) >= LEARNER_QUEUE:
                         pending.popleft()
-                        dropped[ROLLOUT_DROPPED] = dropped.get(ROLLOUT_DROPPED, 0) + 1
+                        dropped[DropKind.LEARNER_BUSY] = dropped.get(DropKind.LEARNER_BUSY, 0) + 1
                     pending.append((header, arrays))
                 cond.notify()
             if stop[0]:
@@ -336,7 +337,8 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
                     return
                 header, arrays = pending.popleft()
                 if total_steps and learner.transitions >= total_steps:
-                    dropped[PAST_TOTAL] = dropped.get(PAST_TOTAL, 0) + 1
+                    past = DropKind.PAST_TOTAL_STEPS
+                    dropped[past] = dropped.get(past, 0) + 1
                     continue
             assembled = assembled_from(arrays)
             try:
@@ -347,9 +349,7 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
                                                           "kept"})
                 return
             end_time = time.time()
-            episodes = [EpisodeStats(0, float(e["episode_return"]), int(e["length"]),
-                                     e["makespan"], bool(e["completed"]), int(e["collisions"]),
-                                     float(e["formation_error"]))
+            episodes = [EpisodeResult.from_event(e).to_stats()
                         for e in header.get("episodes", [])]
             metrics = dict(result.metrics)
             metrics.update(episode_metrics("charts", episodes))

@@ -1,0 +1,89 @@
+"""The environments through PettingZoo's parallel API and Gymnasium, checked by their own tests."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from pettingzoo.test import parallel_api_test, parallel_seed_test
+
+from sdhn_sim.envs.pettingzoo_env import gym_id, parallel_env, register_gymnasium_envs
+from sdhn_sim.envs.registry import make_single_env
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize("name", ["maif-tiny", "maif-10", "rware-3"])
+def test_passes_pettingzoo_parallel_api_test(name: str) -> None:
+    parallel_api_test(parallel_env(name, seed=0, max_steps=40), num_cycles=100)
+
+
+def test_passes_pettingzoo_seed_test() -> None:
+    parallel_seed_test(lambda: parallel_env("maif-tiny", max_steps=30))
+
+
+def test_robots_observe_their_own_rows_and_rewards_add_up_to_the_team_reward() -> None:
+    env = parallel_env("maif-tiny", seed=4)
+    twin = make_single_env("maif-tiny", seed=4)
+    obs, _ = env.reset(seed=7)
+    team_obs, state = twin.reset(seed=7)
+    for i, agent in enumerate(env.possible_agents):
+        np.testing.assert_array_equal(obs[agent], team_obs[i])
+    np.testing.assert_array_equal(env.state(), state)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        joint = rng.integers(0, 5, size=4)
+        obs, rewards, *_ = env.step({a: joint[i] for i, a in enumerate(env.possible_agents)})
+        res = twin.step(joint)
+        assert sum(rewards.values()) == pytest.approx(res.reward, abs=1e-5)
+        np.testing.assert_array_equal(obs["robot_2"], res.obs[2])
+
+
+def test_episode_end_removes_every_agent_and_reports_the_episode() -> None:
+    env = parallel_env("maif-tiny", seed=0, max_steps=5)
+    env.reset(seed=0)
+    for step in range(5):
+        _, _, term, trunc, infos = env.step({a: 0 for a in env.agents})
+        assert (step == 4) == (not env.agents)
+    assert all(trunc.values()) and not any(term.values())
+    assert infos["robot_0"]["episode"]["length"] == 5
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step({})
+
+
+def test_missing_action_is_one_clear_error() -> None:
+    env = parallel_env("maif-tiny")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="missing for"):
+        env.step({"robot_0": 1})
+
+
+def test_gymnasium_ids_make_a_checked_joint_env() -> None:
+    ids = register_gymnasium_envs()
+    assert gym_id("maif-10") in ids and gym_id("rware-3") in ids
+    assert register_gymnasium_envs() == ids  # idempotent
+    env = gymnasium.make(gym_id("maif-tiny"), max_steps=20)
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, info = env.reset(seed=1)
+    assert obs.shape == (4, 57) and "state" in info
+    _, reward, _, _, info = env.step(env.action_space.sample())
+    assert info["robot_rewards"].sum() == pytest.approx(reward, abs=1e-5)
+
+
+def test_example_trains_through_pettingzoo_only(tmp_path: Path) -> None:
+    """The example's loop runs end to end and changes its policy (few iterations)."""
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "example_pettingzoo_ppo.py"), "--env",
+         "maif-solo", "--iterations", "3", "--steps", "256", "--csv", str(tmp_path / "log.csv")],
+        capture_output=True, text=True, timeout=300, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    rows = (tmp_path / "log.csv").read_text().splitlines()
+    assert rows[0].startswith("iteration,") and len(rows) == 4, rows
+    changes = [float(r.split(",")[-1]) for r in rows[1:]]
+    assert all(c > 0 for c in changes), f"the policy's parameters did not move: {changes}"
+    assert "import sdhn_train" not in (ROOT / "scripts" / "example_pettingzoo_ppo.py").read_text()

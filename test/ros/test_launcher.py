@@ -20,6 +20,7 @@ from sdhn_bringup.supervisor import (
     LaunchConfigError,
     graph,
     load_config,
+    node_parameters,
     resolve,
     validate,
 )
@@ -142,9 +143,11 @@ def test_bad_config_exits_2_naming_the_field(tmp_path: Path) -> None:
 def test_managed_is_refused_across_hosts() -> None:
     with pytest.raises(LaunchConfigError, match=r"^managed: .*allowed: false when hosts"):
         load_config(None, ["mode=train", "managed=true", "hosts.sim=somewhere"])
-    managed = graph(resolve(load_config(None, ["mode=train", "managed=true"])))
+    cfg = resolve(load_config(None, ["mode=train", "managed=true"]))
+    managed = graph(cfg)
     assert [c.name for c in managed if c.managed] == [f"actor_{i}" for i in range(4)]
-    assert all("managed:=true" in c.ros_args for c in managed if c.managed)
+    params = node_parameters(cfg)
+    assert all(params[c.node_name]["managed"] is True for c in managed if c.managed)
     assert managed[-1].node_name == "/sdhn/robot_3/actor"
 
 
@@ -161,9 +164,8 @@ def test_validate_checks_without_changing_and_resolve_fills_in(weights: Path) ->
 def test_trainer_section_is_passed_through_by_name(tmp_path: Path) -> None:
     cfg = load_config(None, ["mode=train", "env=maif-tiny", f"run_dir={tmp_path}",
                              "trainer.algo=mappo", "trainer.some_new_knob=3"])
-    trainer = next(c for c in graph(cfg) if c.name == "trainer")
-    args = " ".join(trainer.ros_args)
-    assert "algo:=mappo" in args and "some_new_knob:=3" in args, args
+    trainer = node_parameters(cfg)["/sdhn/trainer"]  # the trainer's part of the params file
+    assert trainer["algo"] == "mappo" and trainer["some_new_knob"] == 3, trainer
     with pytest.raises(LaunchConfigError, match=r"trainer\.seed: set by the launcher"):
         load_config(None, ["mode=train", "trainer.seed=3"])
 

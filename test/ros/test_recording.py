@@ -4,6 +4,7 @@ equals the simulator's), renders frames, and reports a truncated file in one lin
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import sys
@@ -303,12 +304,16 @@ def test_rate_reports_messages_a_stalled_subscriber_never_acknowledged(tmp_path:
                f"output:={tmp_path / 'rec.mcap'}", "-p", f"team_ns:={ns}"]
     with node_processes(command) as (recorder,):
         assert recorder.wait_for_line("ready", timeout=20), recorder.output
-        # 300 messages 1 ms apart at --rate 0.05: 6 s of replay; the recorder freezes 2 s in,
-        # after discovery (which needs both sides awake) and the first messages.
-        replay = subprocess.Popen([*REPLAY, str(path), "--rate", "0.05", "--wait", "10"],
+        # 300 messages 1 ms apart at --rate 0.03: 10 s of replay. The recorder freezes once its
+        # status line (every 5 s) counts received messages: matched and acknowledging, whatever
+        # the load (a fixed delay from the replay's start lost that race on a loaded host).
+        replay = subprocess.Popen([*REPLAY, str(path), "--rate", "0.03", "--wait", "10"],
                                   stdout=subprocess.PIPE,
                                   stderr=subprocess.PIPE, text=True)
-        time.sleep(2.0)
+        deadline = time.monotonic() + 60
+        while not any(re.search(r"status: [1-9]", line) for line in recorder.lines):
+            assert time.monotonic() < deadline and replay.poll() is None, recorder.output
+            time.sleep(0.05)
         recorder.proc.send_signal(signal.SIGSTOP)
         try:
             out, err = replay.communicate(timeout=120)

@@ -4,7 +4,9 @@
 
 Starts the simulator, one actor *process* per robot, the trainer (mode ``train``) and the recorder
 (``recorder: true``), each through the ``ros2 run`` shim, all under ``team_ns``, each child's
-output in ``<run_dir>/logs/<name>.log``. While it runs it prints a status line (processes ready,
+output in ``<run_dir>/logs/<name>.log``. Every child reads its ROS parameters from one file,
+``<run_dir>/params.yaml`` (``--params-file``; each node's entry under its full name,
+docs/parameters.md). While it runs it prints a status line (processes ready,
 episode, step rate, last success/makespan and return, weights version) and appends every finished
 episode to ``<run_dir>/episodes.csv``. Both come as data, never from log text
 (:mod:`sdhn_sim.ros.status`): a child is ready once its ready file
@@ -279,12 +281,53 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
 # --- children ---------------------------------------------------------------------------------
 
 
-def _param(name: str, value: Any) -> list[str]:
-    if isinstance(value, bool):
-        value = "true" if value else "false"
-    elif isinstance(value, str):
-        value = value if value else "''"
-    return ["-p", f"{name}:={value}"]
+# Every node's parameters go into one ROS parameters file per run (rcl's format: the node's full
+# name, then ros__parameters), passed to each child with --params-file; the file stays in the
+# run directory as the record of what every node was started with (docs/parameters.md).
+PARAMS_FILE = "params.yaml"
+# A restarted trainer also reads this one (written in train mode): rcl gives a value in a later
+# file precedence for the same node name, while a -p value would lose to params.yaml's entry.
+RESUME_FILE = "params-resume.yaml"
+NodeParameters = dict[str, dict[str, Any]]  # node full name -> parameter name -> value
+
+
+def actor_node(ns: str, robot: int) -> str:
+    """The full name of robot ``robot``'s actor node ('/sdhn/robot_3/actor')."""
+    return topics.absolute(topics.absolute(ns, topics.robot(robot)), "actor")
+
+
+def node_parameters(cfg: LaunchConfig) -> NodeParameters:
+    """The parameters of every node of one run, by node full name, in start order."""
+    ns, run = cfg.team_ns, Path(cfg.run_dir).resolve()  # ns checked by validate()
+    nodes: NodeParameters = {}
+    if cfg.recorder:
+        nodes[topics.absolute(ns, "recorder")] = {
+            "team_ns": ns, "output": str(run / "recording.mcap")}
+    if cfg.mode == "train":
+        nodes[topics.absolute(ns, "trainer")] = {
+            "team_ns": ns, "env": cfg.env, "seed": cfg.seed, "run_dir": str(run / "trainer"),
+            **cfg.trainer}
+    extra = (int(cfg.recorder) + int(cfg.mode == "train")) if cfg.wait_for_observers else 0
+    nodes[topics.absolute(ns, "sim")] = {
+        "env": cfg.env, "seed": cfg.seed, "episodes": cfg.episodes,
+        "step_deadline": float(cfg.step_deadline), "instance": cfg.instance,
+        "start_timeout": float(cfg.start_timeout), "max_steps": cfg.max_steps,
+        "extra_subscribers": extra, "events_file": str(status_dir(run) / SIM_EVENTS)}
+    for i in range(cfg.robots):
+        nodes[actor_node(ns, i)] = {
+            "team_ns": ns, "robot_id": i, "num_robots": cfg.robots,
+            "weights_file": cfg.weights if cfg.mode == "deploy" else "",
+            "greedy": cfg.greedy if cfg.mode == "deploy" else False, "seed": cfg.seed,
+            "env": cfg.env, "managed": cfg.managed}
+    return nodes
+
+
+def params_file_text(nodes: NodeParameters) -> str:
+    """The parameters file of a run (YAML types: a string stays a string, 1.0 a double)."""
+    head = ("# Written by the launcher: every node's parameters for this run, passed with\n"
+            "# --ros-args --params-file (docs/parameters.md).\n")
+    return head + yaml.safe_dump({name: {"ros__parameters": values}
+                                  for name, values in nodes.items()}, sort_keys=False)
 
 
 @dataclass
@@ -325,40 +368,27 @@ def _entry_package(script: Path) -> str | None:
 
 
 def graph(cfg: LaunchConfig) -> list[ChildSpec]:
-    """The children of one run, in start order."""
+    """The children of one run, in start order; each reads its parameters from the run's
+    parameters file (``node_parameters``, written by ``Launcher.write_params``)."""
     ns, run = cfg.team_ns, Path(cfg.run_dir).resolve()  # ns checked by validate()
-    common = _param("team_ns", ns)
+    params = ["--params-file", str(run / PARAMS_FILE)]
     children: list[ChildSpec] = []
     if cfg.recorder:
-        children.append(ChildSpec("recorder", "sdhn_sim", "recorder", [
-            "-r", f"__ns:={ns}", *common, *_param("output", str(run / "recording.mcap"))]))
+        children.append(ChildSpec("recorder", "sdhn_sim", "recorder",
+                                  ["-r", f"__ns:={ns}", *params]))
     if cfg.mode == "train":
-        args = [*common, *_param("env", cfg.env), *_param("seed", cfg.seed),
-                *_param("run_dir", str(run / "trainer"))]
-        for key, value in cfg.trainer.items():
-            args += _param(key, value)
         # A restarted trainer continues from its last checkpoint (without resume it would refuse
         # the run_dir its first start filled, exit 2, and never come back).
-        children.append(ChildSpec("trainer", "sdhn_train", "trainer", ["-r", f"__ns:={ns}", *args],
-                                  restart_args=_param(RESUME_PARAMETER, True)))
-    extra = (int(cfg.recorder) + int(cfg.mode == "train")) if cfg.wait_for_observers else 0
+        children.append(ChildSpec("trainer", "sdhn_train", "trainer",
+                                  ["-r", f"__ns:={ns}", *params],
+                                  restart_args=["--params-file", str(run / RESUME_FILE)]))
     # The simulator names its topics relative to its namespace, the team namespace.
-    children.append(ChildSpec("sim", "sdhn_sim", "sim", [
-        "-r", f"__ns:={ns}", *_param("env", cfg.env), *_param("seed", cfg.seed),
-        *_param("episodes", cfg.episodes), *_param("step_deadline", float(cfg.step_deadline)),
-        *_param("instance", cfg.instance), *_param("start_timeout", float(cfg.start_timeout)),
-        *_param("max_steps", cfg.max_steps), *_param("extra_subscribers", extra),
-        *_param("events_file", str(status_dir(run) / SIM_EVENTS))],
-        essential=True))
-    weights = cfg.weights if cfg.mode == "deploy" else ""
-    greedy = cfg.greedy if cfg.mode == "deploy" else False
+    children.append(ChildSpec("sim", "sdhn_sim", "sim", ["-r", f"__ns:={ns}", *params],
+                              essential=True))
     for i in range(cfg.robots):
         children.append(ChildSpec(f"actor_{i}", "sdhn_policy", "actor", [
-            "-r", f"__ns:={topics.absolute(ns, topics.robot(i))}", *common,
-            *_param("robot_id", i), *_param("num_robots", cfg.robots),
-            *_param("weights_file", weights), *_param("greedy", greedy),
-            *_param("seed", cfg.seed), *_param("env", cfg.env),
-            *_param("managed", cfg.managed)], managed=cfg.managed))
+            "-r", f"__ns:={topics.absolute(ns, topics.robot(i))}", *params],
+            managed=cfg.managed))
     for child in children:
         child.netns = cfg.hosts.get(child.name, "")
     return children
@@ -377,7 +407,8 @@ LIFECYCLE_RETRY_S = 5.0
 # What a launch writes into its run_dir: a directory holding any of them is another run's and is
 # refused (its logs, events and CSV would be read and appended to as this run's). Other files
 # (a wrapper's own log, like scripts/soak.py's) do not make it one.
-RUN_FILES = ("launch.yaml", "logs", "status", "episodes.csv", "recording.mcap", "trainer")
+RUN_FILES = ("launch.yaml", PARAMS_FILE, "logs", "status", "episodes.csv", "recording.mcap",
+             "trainer")
 
 
 def _die_with_parent() -> None:
@@ -522,6 +553,18 @@ class Launcher:
         tmp.write_text(yaml.safe_dump(dataclasses.asdict(self.cfg), sort_keys=False))
         os.replace(tmp, self.run_dir / "launch.yaml")
 
+    def write_params(self) -> None:
+        """The run's parameters file, before any child starts (each reads it at start-up), and
+        in train mode the one a restarted trainer reads after it."""
+        files = {PARAMS_FILE: node_parameters(self.cfg)}
+        if self.cfg.mode == "train":
+            trainer = topics.absolute(self.cfg.team_ns, "trainer")
+            files[RESUME_FILE] = {trainer: {RESUME_PARAMETER: True}}
+        for name, nodes in files.items():
+            tmp = self.run_dir / f".{name}.{os.getpid()}.w.tmp"  # sdhn_sim.litter
+            tmp.write_text(params_file_text(nodes))
+            os.replace(tmp, self.run_dir / name)
+
     def read_events(self) -> None:
         """Take the simulator's new events: start of stepping, progress, finished episodes."""
         for event in self.events.new():
@@ -561,6 +604,7 @@ class Launcher:
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, self.on_signal)
         self.write_config()
+        self.write_params()
         rec = "on" if self.cfg.recorder else "off"
         self.say(f"run dir {self.run_dir}; mode {self.cfg.mode}, env {self.cfg.env}, "
                  f"{self.cfg.robots} actor processes, recorder {rec}")
@@ -729,6 +773,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         launcher = Launcher(cfg)
         launcher.write_config()
+        launcher.write_params()
     except OSError as e:
         if args.debug:
             raise

@@ -1,11 +1,16 @@
 """Recorder node ``sdhn_sim recorder``: every topic under ``team_ns`` into one MCAP file.
 
 Messages are taken as raw CDR (subscriptions with ``raw=True``, no deserialisation) and written
-with ``ros2msg`` schemas by :class:`sdhn_sim.recording.writer.McapRosWriter`; log time =
-receive time. The recorder must not slow the loop it records: it is its own process with its own
-executor, and its callbacks only append (topic, type, bytes, time) to a queue; a writer thread
-takes the queue in batches every ``WRITE_PERIOD_S`` and does the MCAP work (records, chunk
-compression) off the executor thread, so a chunk being compressed never delays a callback.
+with ``ros2msg`` schemas by :class:`sdhn_sim.recording.writer.McapRosWriter`, as rosbag2 writes
+them (log time = receive time; publish time, which rosbag2 takes from the message info's send
+time, is the receive time too: see ``on_message``), each channel with its publishers' offered QoS
+and type hash, and the ``rosbag2`` metadata record at the end (docs/recording.md).
+
+The recorder must not slow the loop it records: it is its own process with its own executor, and
+its callbacks only append (topic, type, bytes, times) to a queue; a writer thread takes the queue
+in batches every ``WRITE_PERIOD_S`` and does the MCAP work (records, chunk compression, the graph
+query for a new topic's QoS) off the executor thread, so a chunk being compressed never delays a
+callback.
 
 Which topics, with which QoS:
 - The contract's topics are subscribed from the start, with their contract profile, so nothing
@@ -24,7 +29,16 @@ Which topics, with which QoS:
   and actions), and the simulator and actors publish them only while someone subscribes: a
   recorder subscribing would make every actor build and send one more message per step.
 
+Offered QoS: when a topic's first message is written, its channel gets the QoS of every
+publisher the graph knows for it (``get_publishers_info_by_topic``, as rosbag2 records it), with
+history and depth, which DDS discovery does not carry, from the profile the contract gives that
+topic's publishers (``CONTRACT_TOPICS``, ``ROBOT_TOPICS``; other topics say unknown, 0, as in
+rosbag2). A publisher already gone by then is described by the contract's profile or, for a
+discovered topic, by what discovery saw.
+
 One file per run: an existing ``output`` is never overwritten (``-1``, ``-2``... is appended).
+``output`` ending in ``.mcap`` is a bare MCAP file (``ros2 bag play FILE.mcap``); any other path
+is a rosbag2 bag directory holding ``<name>_0.mcap`` and, after a clean stop, ``metadata.yaml``.
 The file is finalised (summary, index) on SIGINT/SIGTERM; a crash leaves it readable up to the
 last complete chunk (``sdhn_sim replay`` says where it stops).
 
@@ -63,12 +77,13 @@ from rclpy.serialization import deserialize_message
 from sdhn_sim.diagnostics import ERROR, OK, Report, WindowCounts, drop_values, make_report
 from sdhn_sim.drops import DropKind
 from sdhn_sim.recording.reader import fresh_path
+from sdhn_sim.recording.rosbag2 import fill_history, type_hash_text
 from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg_schema
 from sdhn_sim.recording.writer import McapRosWriter
 from sdhn_sim.ros import topics
 from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
 from sdhn_sim.ros.params import boolean, declare, string
-from sdhn_sim.ros.qos import LATCHED_RECORDER, SENSOR, STEP
+from sdhn_sim.ros.qos import LATCHED, LATCHED_RECORDER, SENSOR, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
@@ -76,19 +91,20 @@ DISCOVERY_PERIOD_S = 0.5
 WRITE_PERIOD_S = 0.05  # the writer thread takes the queued messages this often, as one batch
 VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
 STATUS_PERIOD_S = 5.0
-CONTRACT_TOPICS = {  # relative to team_ns: (type, profile)
-    topics.STATE: ("sdhn_msgs/msg/TeamState", STEP),
-    topics.EPISODE: ("sdhn_msgs/msg/EpisodeSummary", STEP),
-    topics.WEIGHTS: ("sdhn_msgs/msg/PolicyWeights", LATCHED_RECORDER),
-    topics.HYPERGRAPH: ("sdhn_msgs/msg/Hypergraph", SENSOR),
+CONTRACT_TOPICS = {  # relative to team_ns: (type, the recorder's profile, the publisher's)
+    topics.STATE: ("sdhn_msgs/msg/TeamState", STEP, STEP),
+    topics.EPISODE: ("sdhn_msgs/msg/EpisodeSummary", STEP, STEP),
+    topics.WEIGHTS: ("sdhn_msgs/msg/PolicyWeights", LATCHED_RECORDER, LATCHED),
+    topics.HYPERGRAPH: ("sdhn_msgs/msg/Hypergraph", SENSOR, SENSOR),
 }
 ROBOT_TOPICS = {
     topics.OBS: "sdhn_msgs/msg/RobotObservation",
     topics.ACTION: "sdhn_msgs/msg/RobotAction",
 }
 PARAMETERS = {
-    "output": ("", string("the .mcap file to write; '' = runs/recording-<time>.mcap (an "
-                          "existing file is never overwritten: -1, -2... is appended)")),
+    "output": ("", string("the .mcap file to write, or a rosbag2 bag directory (a path not "
+                          "ending in .mcap); '' = runs/recording-<time>.mcap (an existing file "
+                          "or directory is never overwritten: -1, -2... is appended)")),
     "team_ns": (topics.DEFAULT_TEAM_NS, string(f"team namespace; {topics.TEAM_NS_RULE}")),
     # Off by default: rosbags (and other ROS-only readers) cannot open a file that also holds
     # protobuf channels. `replay --add-viz` makes a Foxglove copy of a plain recording.
@@ -177,21 +193,26 @@ class RecorderNode(Node):
         output, viz = str(p["output"]), bool(p["viz"])
         self.ns = topics.check_team_ns(p["team_ns"])
         requested = Path(output or f"runs/recording-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
-        if requested.suffix != ".mcap":
-            raise ConfigError(f"output: {output!r}; allowed: a path ending in .mcap")
-        self.path = fresh_path(requested)
-        self.writer = McapRosWriter(self.path)
+        bag_dir = requested.suffix != ".mcap"
+        if bag_dir and not requested.name.strip("."):
+            raise ConfigError(f"output: {output!r}; allowed: a path ending in .mcap, or a bag "
+                              "directory to create")
+        where = fresh_path(requested)
+        self.path = where / f"{where.name}_0.mcap" if bag_dir else where
+        self.writer = McapRosWriter(self.path, bag_dir=bag_dir)
         self.lock = threading.Lock()  # the viz worker writes into the same MCAP writer
         self.viz = (VizWorker(VizMcapChannels(self.writer.mcap), self.lock) if viz else None)
         self._viz_kinds = {topics.absolute(self.ns, kind): kind for kind in KINDS.values()}
         self.counts: dict[str, int] = {}
         self.skipped: set[str] = set()
+        self._publisher_qos: dict[str, QoSProfile] = {}  # topic -> the contract's profile
+        self._discovered: dict[str, tuple[list[QoSProfile], str]] = {}  # topic -> as seen
         self._subs: dict[str, Any] = {}
         self._robots: set[int] = set()
         self._t0 = time.monotonic()
         self._bytes = 0
         self._last_status = ""
-        self._pending: collections.deque[tuple[str, str, bytes, int]] = collections.deque()
+        self._pending: collections.deque[tuple[str, str, bytes, int, int]] = collections.deque()
         self._stop_writing = threading.Event()
         self.batches = 0
         self.largest_batch = 0
@@ -200,19 +221,21 @@ class RecorderNode(Node):
         self._writer_thread = threading.Thread(target=self.write_loop, name="mcap-writer",
                                                daemon=True)
         self._writer_thread.start()
-        for rel, (type_name, profile) in CONTRACT_TOPICS.items():
-            self.record(topics.absolute(self.ns, rel), type_name, profile)
+        for rel, (type_name, profile, offered) in CONTRACT_TOPICS.items():
+            self.record(topics.absolute(self.ns, rel), type_name, profile, offered)
         self.discover()
         self.create_timer(DISCOVERY_PERIOD_S, self.discover)
         self.create_timer(STATUS_PERIOD_S, self.log_status)
         self._drops_window = WindowCounts()
         self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
-        note = "" if self.path == requested else f" ({requested} exists)"
+        note = "" if where == requested else f" ({requested} exists)"
         note += "" if viz else "; no viz channels (viz:=false)"
         self.get_logger().info(f"ready: recording {self.ns}/* to {self.path}{note}")
 
-    def record(self, topic: str, type_name: str, profile: QoSProfile) -> None:
-        """Subscribe to ``topic`` (raw CDR) unless already done or impossible (logged once)."""
+    def record(self, topic: str, type_name: str, profile: QoSProfile,
+               offered: QoSProfile | None = None) -> None:
+        """Subscribe to ``topic`` (raw CDR) unless already done or impossible (logged once);
+        ``offered``: the contract's publisher profile, written when the graph cannot say."""
         if topic in self._subs or topic in self.skipped:
             return
         try:
@@ -225,6 +248,8 @@ class RecorderNode(Node):
         self._subs[topic] = self.create_subscription(
             cls, topic, functools.partial(self.on_message, topic, type_name), profile, raw=True)
         self.counts[topic] = 0
+        if offered is not None:
+            self._publisher_qos[topic] = offered
 
     def discover(self) -> None:
         for topic, types in self.get_topic_names_and_types():
@@ -237,13 +262,31 @@ class RecorderNode(Node):
                 self._robots.add(i)
                 for kind, type_name in ROBOT_TOPICS.items():
                     self.record(topics.absolute(self.ns, f"{topics.robot(i)}/{kind}"),
-                                type_name, STEP)
+                                type_name, STEP, STEP)
                 if topic in self._subs:
                     continue
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers or len(types) != 1:
                 continue  # nobody publishes yet (or ambiguous types): next round
-            self.record(topic, types[0], profile_for([p.qos_profile for p in publishers]))
+            offers = [p.qos_profile for p in publishers]
+            self._discovered[topic] = (offers, type_hash_text(publishers[0].topic_type_hash))
+            self.record(topic, types[0], profile_for(offers))
+
+    def describe(self, topic: str) -> tuple[list[QoSProfile], str]:
+        """(offered QoS of every publisher, type hash) for ``topic``'s channel: from the graph
+        now, as rosbag2 does; else what discovery saw, else the contract's publisher profile.
+        Called on the writer thread (rclpy's graph queries take the node's lock)."""
+        contract = self._publisher_qos.get(topic)
+        try:
+            publishers = self.get_publishers_info_by_topic(topic)
+        except Exception:  # the node is being destroyed at shutdown: fall back below
+            publishers = []
+        if publishers:
+            return (fill_history([p.qos_profile for p in publishers], contract),
+                    type_hash_text(publishers[0].topic_type_hash))
+        if topic in self._discovered:
+            return self._discovered[topic]
+        return ([contract] if contract is not None else []), ''
 
     def on_message(self, topic: str, type_name: str, data: bytes) -> None:
         # time.time_ns() is the ROS system clock without rclpy's ~17 us per call (no sim time here)
@@ -251,7 +294,10 @@ class RecorderNode(Node):
         if self.write_error is not None:
             self.not_written += 1
             return
-        self._pending.append((topic, type_name, data, now))  # the writer thread writes it
+        # Publish time = receive time: the send time is in the message info, which the events
+        # executor of these wheels cannot pass (a two-argument callback raises SystemError
+        # there), and the default executor would cost several times the CPU per message.
+        self._pending.append((topic, type_name, data, now, now))  # the writer thread writes it
         if self.viz is not None and (kind := self._viz_kinds.get(topic)) is not None:
             self.viz.offer(kind, type_name, data, now)
         self.counts[topic] += 1
@@ -275,10 +321,13 @@ class RecorderNode(Node):
         n = len(self._pending)  # only this thread pops; callbacks only append
         if not n:
             return
+        batch = [self._pending.popleft() for _ in range(n)]
+        for topic in {m[0] for m in batch}:  # graph queries outside the writer's lock
+            if not self.writer.has_channel(topic):
+                self.writer.add_topic(topic, *self.describe(topic))
         with self.lock:
-            for _ in range(n):
-                topic, type_name, data, now = self._pending.popleft()
-                self.writer.write_serialized(topic, type_name, data, now)
+            for topic, type_name, data, now, sent in batch:
+                self.writer.write_serialized(topic, type_name, data, now, sent)
         self.batches += 1
         self.largest_batch = max(self.largest_batch, n)
 

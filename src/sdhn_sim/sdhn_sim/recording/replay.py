@@ -5,13 +5,16 @@
 --summary          per-episode table: the simulator's EpisodeSummary messages, recomputed from the
                    recorded TeamState for episodes without one (source column says which).
 --rate X           republish every recorded message on its own topic at X times the recorded speed
-                   (1 = as recorded, 0.001..1000), with the contract's QoS (policy/weights
-                   latched, hypergraph best effort, the rest STEP). Waits up to --wait seconds for
-                   subscribers first. Flow control: every reliable topic waits for its matched
-                   subscribers to acknowledge before its history window could overwrite an
-                   unacknowledged sample, and once more before exiting; a slow subscriber slows
-                   the replay instead of losing messages. Messages not acknowledged within
-                   --ack-timeout are counted, named in one line, and the exit code is 1.
+                   (1 = as recorded, 0.001..1000), each topic with the QoS recorded for it (its
+                   channel's offered_qos_profiles, adapted as ros2 bag play does:
+                   recording.rosbag2.replay_profile), or, for a recording without it, the
+                   contract's (policy/weights latched, hypergraph best effort, the rest STEP).
+                   Waits up to --wait seconds for subscribers first. Flow control: every reliable
+                   topic waits for its matched subscribers to acknowledge before its history window
+                   could overwrite an unacknowledged sample, and once more before exiting; a slow
+                   subscriber slows the replay instead of losing messages. Messages not
+                   acknowledged within --ack-timeout are counted, named in one line, and the exit
+                   code is 1.
 --export-episode K episode K rendered from the recorded TeamState positions, on the MAIF map of
 --out DIR          the recorded instance id (recording.reader): PNG frames (frame_<step>.png) into
 --gif OUT.gif      DIR, and/or an animated GIF / an MP4 with goals outlined, trails (--trail N
@@ -374,9 +377,11 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
     import rclpy
     from rclpy.context import Context
     from rclpy.duration import Duration
+    from rclpy.qos import ReliabilityPolicy
 
     from sdhn_sim.data_files import fastdds_replay_profile
     from sdhn_sim.recording.reader import current_cdr
+    from sdhn_sim.recording.rosbag2 import recorded_profile
     from sdhn_sim.recording.schema import message_class
     from sdhn_sim.ros import topics
     from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
@@ -393,15 +398,16 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
     try:
         for m in messages:
             if m.topic not in pubs and m.topic not in skipped:
-                profile = (LATCHED if topics.team_of(m.topic, topics.WEIGHTS) else
-                           SENSOR if topics.team_of(m.topic, topics.HYPERGRAPH) else STEP)
+                profile = recorded_profile(rec.channels.get(m.channel_id)) or (
+                    LATCHED if topics.team_of(m.topic, topics.WEIGHTS) else
+                    SENSOR if topics.team_of(m.topic, topics.HYPERGRAPH) else STEP)
                 try:
                     cls = message_class(m.type_name)
                 except (ValueError, LookupError, ImportError):  # schema.UnknownMessageType
                     skipped[m.topic] += 1
                     continue
                 pubs[m.topic] = node.create_publisher(cls, m.topic, profile)
-                if profile is not SENSOR:
+                if profile.reliability == ReliabilityPolicy.RELIABLE:
                     reliable.add(m.topic)
                     # samples in flight before waiting: below the history depth, so an
                     # unacknowledged sample is never overwritten (1 for the latched weights)

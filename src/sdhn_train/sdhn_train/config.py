@@ -18,10 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-import yaml
-
 from sdhn_policy.features import TRANSFORMS
-from sdhn_sim import overrides
+from sdhn_sim import overrides, yaml_io
 from sdhn_sim.envs.maif import MAIF_REWARDS
 from sdhn_sim.envs.registry import env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS, get_algorithm
@@ -120,19 +118,11 @@ _YAML_ALLOWED = "allowed: a YAML file holding {section: {field: value}}"
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML mapping; ConfigError (one line) for a missing, unreadable, binary or malformed
-    file."""
+    file, a key given twice or an alias bomb (``sdhn_sim.yaml_io``)."""
     try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read: {e.strerror or e}; {_YAML_ALLOWED}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a text file; {_YAML_ALLOWED}") from None
-    except yaml.YAMLError as e:
-        where = getattr(e, "problem_mark", None)
-        at = f" at line {where.line + 1}" if where is not None else ""
-        raise ConfigError(f"{path}: malformed YAML{at}: "
-                          f"{getattr(e, 'problem', None) or type(e).__name__}; {_YAML_ALLOWED}"
-                          ) from None
+        data = yaml_io.load_yaml(Path(path), what="config") or {}
+    except yaml_io.YamlError as e:
+        raise ConfigError(f"{e}; {_YAML_ALLOWED}") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping of sections")
     return data

@@ -35,7 +35,8 @@ budgets:
       log.checkpoint_interval: 64
       log.tensorboard: false
 """
-LOOPBACK = {"0100007F", "00000000000000000000000001000000"}  # 127.0.0.1, ::1 in /proc/net
+LOOPBACK = {"0100007F", "00000000000000000000000001000000",  # 127.0.0.1, ::1 in /proc/net
+            "0000000000000000FFFF00000100007F"}  # ::ffff:127.0.0.1
 
 
 def _tree(root: int) -> set[int]:

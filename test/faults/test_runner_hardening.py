@@ -316,3 +316,17 @@ def test_second_runner_on_a_logdir_in_use_is_refused_even_after_the_first_is_kil
             assert time.monotonic() < deadline, "the lock outlived every process holding it"
             time.sleep(0.1)
     assert run_state(run, logdir) == "partial"
+
+
+@pytest.mark.parametrize("name", ["../escape", "a/b", "..", ".", "a\\b"])
+def test_trainer_run_name_is_one_directory_name(name: str) -> None:
+    """The same class in the trainer: log.run_name is joined to log.root, so a separator or a
+    dot name would put the run outside the root."""
+    from sdhn_train.config import Config, ConfigError, validate
+
+    cfg = Config()
+    cfg.log.run_name = name
+    with pytest.raises(ConfigError, match=r"log\.run_name"):
+        validate(cfg)
+    cfg.log.run_name = "maif-10__sdhn__1"
+    validate(cfg)

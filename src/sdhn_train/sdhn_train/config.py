@@ -160,6 +160,13 @@ def validate(cfg: Config, resuming: bool = False) -> None:
     need(cfg.ppo.num_minibatches <= cfg.env.num_envs, "ppo.num_minibatches",
          f"1..env.num_envs ({cfg.env.num_envs})", cfg.ppo.num_minibatches)
     _validate_learner_processes(cfg)
+    # The run directory is <log.root>/<log.run_name>: a name with a separator or "." / ".."
+    # would put the run (and what a resume cuts back) outside the root.
+    need(cfg.log.run_name in ("", None) or ("/" not in cfg.log.run_name
+                                            and "\\" not in cfg.log.run_name
+                                            and cfg.log.run_name not in (".", "..")
+                                            and "\x00" not in cfg.log.run_name),
+         "log.run_name", "one directory name (no / or \\, not . or ..)", cfg.log.run_name)
     need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",
          cfg.actor.hidden_sizes)
     # A missing warm-start file is refused here, not after the environments are built.

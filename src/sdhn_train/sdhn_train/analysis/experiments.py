@@ -409,20 +409,28 @@ class LogdirLock:
     one's runs. The runner passes the descriptor to its training processes, so the lock holds
     until the last of them has exited, even if the runner itself is killed."""
 
+    GRACE_S = 3.0  # processes killed a moment ago may still hold it while they exit
+
     def __init__(self, logdir: Path) -> None:
         self.path = logdir / LOCK
         self.fd = -1
 
     def __enter__(self) -> LogdirLock:
         self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(self.fd, 200).decode(errors="replace").strip() or "unknown"
-            os.close(self.fd)
-            raise ExperimentError(f"{self.path.parent} is in use by another run_experiments or "
-                                  f"its training processes ({holder}); wait for it to finish "
-                                  "or use another --logdir") from None
+        deadline = time.monotonic() + self.GRACE_S
+        while True:
+            try:
+                fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() < deadline:
+                    time.sleep(0.1)
+                    continue
+                holder = os.read(self.fd, 200).decode(errors="replace").strip() or "unknown"
+                os.close(self.fd)
+                raise ExperimentError(f"{self.path.parent} is in use by another run_experiments "
+                                      f"or its training processes ({holder}); wait for it to "
+                                      "finish or use another --logdir") from None
         os.ftruncate(self.fd, 0)
         os.pwrite(self.fd, f"pid {os.getpid()} on {os.uname().nodename}".encode(), 0)
         return self

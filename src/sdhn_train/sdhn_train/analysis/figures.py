@@ -196,7 +196,11 @@ def read_run(path: Path) -> Run:
         seed = int(spec.get("seed", config["train"].get("seed")))
     except (TypeError, ValueError):
         raise FigureError(f"{path}: no integer seed in run.json or config.yaml") from None
-    return Run(path=path, task=str(spec.get("task", config["env"]["name"])),
+    task = str(spec.get("task", config["env"]["name"]))
+    if task not in env_names():
+        raise FigureError(f"{path}: task {task!r} is not an environment; allowed: "
+                          f"{', '.join(env_names())}")
+    return Run(path=path, task=task,
                method=str(spec.get("method", method_of(config))),
                seed=seed, config=config,
                suite=spec.get("suite"), series=read_metrics(csv_file))

@@ -129,3 +129,18 @@ def _alive(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
     except (OSError, IndexError):
         return False
+
+
+def test_a_run_larger_than_the_local_ray_is_refused_not_queued_forever(tmp_path: Path) -> None:
+    """A run asking for more CPUs than --num-cpus would stay pending forever on Ray: refused
+    (one line) before Ray starts."""
+    from sdhn_train.analysis.experiments import ExperimentError, load_suite
+    from sdhn_train.analysis.ray_backend import run_suite_ray
+
+    suite = tmp_path / "suite.yaml"
+    suite.write_text(SUITE.replace("      log.tensorboard: false\n",
+                                   "      log.tensorboard: false\n      train.threads: 2\n"))
+    runs = load_suite(suite, "long")
+    with pytest.raises(ExperimentError, match="needs 2 CPUs"):
+        run_suite_ray(runs, tmp_path / "logs", num_cpus=1)
+    assert not any((tmp_path / "logs").glob("maif-solo*"))

@@ -330,3 +330,15 @@ def test_trainer_run_name_is_one_directory_name(name: str) -> None:
         validate(cfg)
     cfg.log.run_name = "maif-10__sdhn__1"
     validate(cfg)
+
+
+def test_trainer_trim_drops_a_cut_off_last_row(tmp_path: Path) -> None:
+    """The same class in the trainer's own resume (train --resume): its cut of metrics.csv
+    also drops a row a crash cut off, which it used to keep when the step survived."""
+    from sdhn_train.runs import trim_metrics
+
+    (tmp_path / "metrics.csv").write_text("step,wall_time,tag,value\n32,1.0,a,1\n64,2.0,a,2\n"
+                                          "64,2.5,b")
+    assert trim_metrics(tmp_path, 64) == 1
+    assert (tmp_path / "metrics.csv").read_text().splitlines() == [
+        "step,wall_time,tag,value", "32,1.0,a,1", "64,2.0,a,2"]

@@ -409,7 +409,7 @@ class LogdirLock:
     one's runs. The runner passes the descriptor to its training processes, so the lock holds
     until the last of them has exited, even if the runner itself is killed."""
 
-    GRACE_S = 3.0  # processes killed a moment ago may still hold it while they exit
+    GRACE_S = 10.0  # processes killed a moment ago may still hold it while they exit
 
     def __init__(self, logdir: Path) -> None:
         self.path = logdir / LOCK

@@ -27,6 +27,11 @@ latest checkpoint (``metrics.csv`` cut back to that step, so the finished log eq
 uninterrupted one) or, without a checkpoint, starts again from scratch. A run directory whose
 ``run.json`` differs from the suite's spec (other budget, other overrides) is an error, never
 silently mixed.
+
+Hardening (docs/reliability-runner.md): method, task, suite and budget names are checked as path
+components before anything is written (``check_name``), and every path deleted is checked to lie
+inside the log directory (``inside``); one runner per log directory (``LogdirLock``, inherited by
+the trainers); a run is done only with its outputs (``OUTPUTS``) and finite results.
 """
 
 from __future__ import annotations

@@ -20,13 +20,50 @@ import shutil
 import sys
 import tempfile
 from pathlib import Path
-
-import yaml
+from typing import Any
 
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.deploy_eval import SETS, instance_env, run_actor, summarise
-from sdhn_policy.weights import save_actor_file
+from sdhn_policy.onnx_export import write_onnx
+from sdhn_policy.weights import WeightsError, decode_weights, load_actor_file, save_actor_file
 from sdhn_sim.envs.maif_scripted import evaluate_scripted
+from sdhn_sim.yaml_io import YamlError, load_yaml
+
+
+class ShipError(ValueError):
+    """A run or an output that cannot be shipped; one line, exit 2."""
+
+
+def _run_config(cfg_file: Path) -> dict[str, Any]:
+    try:
+        cfg = load_yaml(cfg_file, what="run config")
+    except YamlError as e:
+        raise ShipError(str(e)) from None
+    if not isinstance(cfg, dict) or not all(isinstance(cfg.get(s), dict)
+                                            for s in ("env", "algo", "train")):
+        raise ShipError(f"{cfg_file}: not a trainer config (env, algo, train sections)")
+    return cfg
+
+
+def _check_out(out: Path, run_dir: Path) -> None:
+    """Refuse, before any evaluation, an output that would overwrite the run or a file."""
+    if out.exists() and not out.is_dir():
+        raise ShipError(f"{out} exists and is not a directory: name a model directory")
+    real = out.resolve()
+    if real == run_dir.resolve() or run_dir.resolve() in real.parents:
+        raise ShipError(f"{out} is the run directory (or inside it): ship into a model directory "
+                        "such as models/maif-10-sdhn")
+
+
+def _check_fits(rt: ActorRuntime, env_name: str, actor: Path) -> None:
+    """The actor must read this env's observations (an actor of another env would fail, or
+    worse run, midway through the evaluation)."""
+    env = instance_env(env_name, "train", 1, 0, "corrected")
+    if rt.spec.obs_size != env.obs_size or (rt.spec.use_robot_id
+                                            and rt.spec.num_robots != env.num_robots):
+        raise ShipError(f"{actor}: an actor for obs size {rt.spec.obs_size}"
+                        f"{f', {rt.spec.num_robots} robots' if rt.spec.use_robot_id else ''}; "
+                        f"{env_name} has obs size {env.obs_size}, {env.num_robots} robots")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,23 +76,58 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--checkpoint", help="ship the actor of this checkpoint of the run (a name in "
                                         "RUN_DIR/checkpoints/) instead of its exported actor")
     args = p.parse_args(argv)
+    try:
+        with tempfile.TemporaryDirectory(prefix="ship-") as tmp:
+            return ship(args, Path(tmp))
+    except (ShipError, WeightsError, OSError) as e:
+        print(f"ship_model: {e}", file=sys.stderr)
+        return 2
+
+
+def ship(args: argparse.Namespace, tmp: Path) -> int:
+    if args.instances < 1:
+        raise ShipError(f"--instances {args.instances}: allowed: an integer >= 1")
+    if not args.run_dir.is_dir():
+        raise ShipError(f"{args.run_dir} is not a run directory")
+    _check_out(args.out, args.run_dir)
     actor = args.run_dir / "actor.safetensors"
     cfg_file = args.run_dir / "config.yaml"
     summary_file = args.run_dir / "summary.json"
-    summary = json.loads(summary_file.read_text()) if summary_file.is_file() else {}
+    try:
+        summary = json.loads(summary_file.read_bytes()) if summary_file.is_file() else {}
+    except ValueError:
+        summary = {}  # only its step count goes into the card
+    summary = summary if isinstance(summary, dict) else {}
+    if not cfg_file.is_file():
+        raise ShipError(f"{args.run_dir} has no config.yaml: not a training run")
+    cfg = _run_config(cfg_file)
+    env_name, reward = str(cfg["env"].get("name")), str(cfg["env"].get("reward", "corrected"))
+    if not env_name.startswith("maif"):
+        raise ShipError(f"{args.run_dir} trained {env_name}: ship_model ships MAIF actors "
+                        "(their card is evaluated on the MAIF instance sets)")
     if args.checkpoint:
+        from sdhn_train.checkpoint import CheckpointError
         from sdhn_train.export import actor_from_checkpoint  # torch only on this path
 
-        blob, step = actor_from_checkpoint(args.run_dir / "checkpoints" / args.checkpoint)
-        actor = Path(tempfile.mkdtemp(prefix="ship-")) / "actor.safetensors"
+        stem = args.run_dir / "checkpoints" / args.checkpoint
+        if not stem.with_suffix(".json").is_file():
+            have = sorted(p.stem for p in (args.run_dir / "checkpoints").glob("*.json"))
+            raise ShipError(f"--checkpoint {args.checkpoint}: not in {args.run_dir}/checkpoints "
+                            f"(it has {', '.join(have[-3:]) or 'none'})")
+        try:
+            blob, step = actor_from_checkpoint(stem)
+        except (CheckpointError, KeyError, ValueError) as e:
+            raise ShipError(f"--checkpoint {args.checkpoint}: {e}") from None
+        actor = tmp / "actor.safetensors"
         save_actor_file(actor, blob)
         summary = {"global_step": step}
-    if not actor.is_file() or not cfg_file.is_file():
-        print(f"ship_model: {args.run_dir} has no actor.safetensors/config.yaml", file=sys.stderr)
-        return 2
-    cfg = yaml.safe_load(cfg_file.read_text())
-    env_name, reward = cfg["env"]["name"], cfg["env"].get("reward", "corrected")
-    rt = ActorRuntime.from_file(actor)
+    if not actor.is_file():
+        raise ShipError(f"{args.run_dir} has no actor.safetensors (or name --checkpoint)")
+    try:
+        rt = ActorRuntime.from_file(actor)
+    except ValueError as e:  # WeightsError and the runtime's own shape checks
+        raise ShipError(f"{actor}: {e}") from None
+    _check_fits(rt, env_name, actor)
     k = args.instances
     results: dict[str, dict[str, object]] = {}
     for which in SETS:
@@ -71,19 +143,32 @@ def main(argv: list[str] | None = None) -> int:
         results[f"lower_bound/{which}"] = {"makespan": round(r.lower_bound, 2)}
         print(f"[ship] {which}: policy {results[f'policy/{which}']}", flush=True)
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    for suffix in (".safetensors", ".json"):
-        shutil.copyfile(actor.with_suffix(suffix), args.out / f"actor{suffix}")
-    card = {"env": env_name, "algo": cfg["algo"]["name"], "reward": reward,
-            "features": rt.spec.features, "seed": cfg["train"]["seed"],
+    card = {"env": env_name, "algo": cfg["algo"].get("name"), "reward": reward,
+            "features": rt.spec.features, "seed": cfg["train"].get("seed"),
             "team_steps": summary.get("global_step"),
             "instance_set": cfg["env"].get("instance_set"),
-            "warm_start": warm_start_name(cfg.get("actor", {}).get("init_from")),
+            "warm_start": warm_start_name((cfg.get("actor") or {}).get("init_from")),
             "weights_sha256": rt_sha(actor),
             "evaluation": {"instances_per_set": k, "seed": args.seed, **results}}
-    (args.out / "card.json").write_text(json.dumps(card, indent=2) + "\n")
-    (args.out / "card.md").write_text(card_markdown(card, args.note))
-    print(f"[ship] wrote {args.out}/ (actor.safetensors, actor.json, card.md, card.json)")
+    # Written next to the model directory, then moved in: a crash leaves the old model whole.
+    staged = tmp / "model"
+    staged.mkdir()
+    for suffix in (".safetensors", ".json"):
+        shutil.copyfile(actor.with_suffix(suffix), staged / f"actor{suffix}")
+    (staged / "card.json").write_text(json.dumps(card, indent=2) + "\n")
+    (staged / "card.md").write_text(card_markdown(card, args.note))
+    blob = load_actor_file(actor)  # the ONNX form beside it, with its I/O contract
+    write_onnx(staged / "actor.onnx", *decode_weights(blob), env_family="maif",
+               version=blob.version)
+    _check_out(args.out, args.run_dir)  # again: it may have changed during the evaluation
+    args.out.mkdir(parents=True, exist_ok=True)
+    files = ("actor.safetensors", "actor.json", "actor.onnx", "actor.onnx.json", "card.md",
+             "card.json")
+    for f in files:
+        shutil.copyfile(staged / f, args.out / f"{f}.tmp")
+    for f in files:
+        (args.out / f"{f}.tmp").replace(args.out / f)
+    print(f"[ship] wrote {args.out}/ ({', '.join(files)})")
     return 0
 
 

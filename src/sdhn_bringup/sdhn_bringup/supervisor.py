@@ -66,6 +66,7 @@ from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.overrides import OverrideError, set_field
 from sdhn_sim.ros import topics
 from sdhn_sim.ros.status import READY_ENV, EventReader, read_statuses
+from sdhn_sim.yaml_io import YamlError, load_yaml
 
 MODES = ("deploy", "train")
 RESTART_POLICIES = ("never", "on-failure")
@@ -236,16 +237,9 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
     cfg = LaunchConfig()
     if path is not None:
         try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except OSError as e:
-            raise LaunchConfigError(f"config: cannot read {path}: {e.strerror or e}") from None
-        except UnicodeDecodeError:
-            raise LaunchConfigError(f"config: {path} is not a text file (YAML expected)"
-                                    ) from None
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            at = f" at line {mark.line + 1}" if mark is not None else ""
-            raise LaunchConfigError(f"config: {path}: malformed YAML{at}") from None
+            data = load_yaml(path, what="config") or {}
+        except YamlError as e:  # unreadable, binary, malformed, a duplicate key, an alias bomb
+            raise LaunchConfigError(str(e)) from None
         if not isinstance(data, dict):
             raise LaunchConfigError(f"config: {path} must hold a mapping of fields")
         for k, v in data.items():
@@ -265,8 +259,8 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
         if not sep:
             raise LaunchConfigError(f"--set {item!r}: expected FIELD=VALUE")
         try:
-            parsed = yaml.safe_load(value) if value.strip() else ""
-        except yaml.YAMLError:
+            parsed = load_yaml(value, what=f"--set {key.strip()}") if value.strip() else ""
+        except YamlError:
             parsed = value  # not YAML: the text itself, checked by the field's type
         if key.strip().startswith("hosts."):
             cfg.hosts[key.strip().removeprefix("hosts.")] = str(parsed)

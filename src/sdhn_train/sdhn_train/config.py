@@ -18,10 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-import yaml
-
 from sdhn_policy.features import TRANSFORMS
-from sdhn_sim import overrides
+from sdhn_sim import overrides, yaml_io
 from sdhn_sim.envs.maif import MAIF_REWARDS
 from sdhn_sim.envs.registry import env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS, get_algorithm
@@ -120,19 +118,11 @@ _YAML_ALLOWED = "allowed: a YAML file holding {section: {field: value}}"
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML mapping; ConfigError (one line) for a missing, unreadable, binary or malformed
-    file."""
+    file, a key given twice or an alias bomb (``sdhn_sim.yaml_io``)."""
     try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read: {e.strerror or e}; {_YAML_ALLOWED}") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a text file; {_YAML_ALLOWED}") from None
-    except yaml.YAMLError as e:
-        where = getattr(e, "problem_mark", None)
-        at = f" at line {where.line + 1}" if where is not None else ""
-        raise ConfigError(f"{path}: malformed YAML{at}: "
-                          f"{getattr(e, 'problem', None) or type(e).__name__}; {_YAML_ALLOWED}"
-                          ) from None
+        data = yaml_io.load_yaml(Path(path), what="config") or {}
+    except yaml_io.YamlError as e:
+        raise ConfigError(f"{e}; {_YAML_ALLOWED}") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping of sections")
     return data
@@ -170,6 +160,13 @@ def validate(cfg: Config, resuming: bool = False) -> None:
     need(cfg.ppo.num_minibatches <= cfg.env.num_envs, "ppo.num_minibatches",
          f"1..env.num_envs ({cfg.env.num_envs})", cfg.ppo.num_minibatches)
     _validate_learner_processes(cfg)
+    # The run directory is <log.root>/<log.run_name>: a name with a separator or "." / ".."
+    # would put the run (and what a resume cuts back) outside the root.
+    need(cfg.log.run_name in ("", None) or ("/" not in cfg.log.run_name
+                                            and "\\" not in cfg.log.run_name
+                                            and cfg.log.run_name not in (".", "..")
+                                            and "\x00" not in cfg.log.run_name),
+         "log.run_name", "one directory name (no / or \\, not . or ..)", cfg.log.run_name)
     need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",
          cfg.actor.hidden_sizes)
     # A missing warm-start file is refused here, not after the environments are built.

@@ -84,13 +84,24 @@ def trim_metrics(run_dir: Path, step: int) -> int:
         rows = list(csv.reader(f))
     if not rows:
         return 0
-    keep = [rows[0]] + [r for r in rows[1:] if r and r[0].isdigit() and int(r[0]) <= step]
+    # A row cut off by a crash (fewer columns, a half-written value) goes too: the resumed
+    # run appends after it, and a reader would take it for data.
+    keep = [rows[0]] + [r for r in rows[1:] if len(r) == len(rows[0]) and r[0].isdigit()
+                        and _is_number(r[-1]) and int(r[0]) <= step]
     dropped = len(rows) - len(keep)
     if dropped:
         buf = io.StringIO()
         csv.writer(buf).writerows(keep)
         atomic_write_bytes(path, buf.getvalue().encode())
     return dropped
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 class MetricsLog:

@@ -10,7 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from sdhn_train.analysis import experiments
-from sdhn_train.analysis.experiments import ExperimentError, load_suite, run_state, run_suite
+from sdhn_train.analysis.experiments import (
+    ExperimentError,
+    check_jobs,
+    check_runs,
+    load_suite,
+    run_state,
+    run_suite,
+)
 from sdhn_train.config import ConfigError
 
 
@@ -40,6 +47,11 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _terminated)
     try:
         runs = load_suite(args.suite, args.budget)
+        check_runs(runs)
+        check_jobs(args.jobs)
+        if args.num_cpus is not None and args.num_cpus < 1:
+            raise ExperimentError(f"--num-cpus {args.num_cpus}: allowed: an integer >= 1 (CPUs "
+                                  "the local Ray offers; a run needs at least one)")
         logdir = args.logdir or Path("runs") / f"{runs[0].suite}-{args.budget}"
         if args.list:
             for r in runs:

@@ -33,16 +33,17 @@ from __future__ import annotations
 
 import csv
 import json
+import zipfile
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from sdhn_sim.envs.maif_scripted import SCRIPTED_LABELS, ScriptedResult, evaluate_scripted
 from sdhn_sim.envs.registry import env_names
+from sdhn_sim.yaml_io import YamlError, load_yaml
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.runs import PH_DIR
 
@@ -118,14 +119,33 @@ def method_of(config: dict[str, Any]) -> str:
 
 def read_metrics(path: Path) -> dict[str, Series]:
     """{tag: (steps, values)} from a long-format metrics.csv; a step logged twice (a resumed
-    run) keeps its last value."""
+    run) keeps its last value. A last row cut off by a crash is left out; any other row that
+    does not parse, a binary file or one that is not a trainer's metrics.csv is a FigureError
+    naming the file and line."""
     rows: dict[str, dict[int, float]] = defaultdict(dict)
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        if reader.fieldnames is None or not {"step", "tag", "value"} <= set(reader.fieldnames):
-            raise FigureError(f"{path}: not a trainer metrics.csv (columns {reader.fieldnames})")
-        for row in reader:
-            rows[row["tag"]][int(row["step"])] = float(row["value"])
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            lines = list(csv.reader(f))
+    except UnicodeDecodeError:
+        raise FigureError(f"{path}: not a text file (a trainer metrics.csv expected)") from None
+    except csv.Error as e:
+        raise FigureError(f"{path}: not a CSV file ({e})") from None
+    header = lines[0] if lines else None
+    if header is None or not {"step", "tag", "value"} <= set(header):
+        raise FigureError(f"{path}: not a trainer metrics.csv (columns {header})")
+    i_step, i_tag, i_value = header.index("step"), header.index("tag"), header.index("value")
+    for n, row in enumerate(lines[1:], start=2):
+        try:
+            if len(row) != len(header):
+                raise ValueError(f"{len(row)} columns, expected {len(header)}")
+            step, value = int(row[i_step]), float(row[i_value])
+        except ValueError as e:
+            if n == len(lines):  # the last row, cut off where a crash stopped the writer
+                break
+            raise FigureError(f"{path}: line {n} is not a metrics row ({e}); allowed: "
+                              f"{', '.join(header)} with an integer step and a numeric value"
+                              ) from None
+        rows[row[i_tag]][step] = value
     out = {}
     for tag, by_step in rows.items():
         steps = np.array(sorted(by_step))
@@ -133,16 +153,56 @@ def read_metrics(path: Path) -> dict[str, Series]:
     return out
 
 
+def _read_config(path: Path) -> dict[str, Any]:
+    """A run's config.yaml as written by the trainer; FigureError (one line) otherwise."""
+    try:
+        config = load_yaml(path, what="run config")
+    except YamlError as e:
+        raise FigureError(str(e)) from None
+    if not isinstance(config, dict):
+        raise FigureError(f"{path}: not a trainer config (expected a mapping of sections, got "
+                          f"{type(config).__name__})")
+    for section in ("env", "algo", "train"):
+        if not isinstance(config.get(section), dict):
+            raise FigureError(f"{path}: not a trainer config (section {section!r} missing)")
+    if "name" not in config["env"] or "name" not in config["algo"]:
+        raise FigureError(f"{path}: not a trainer config (env.name or algo.name missing)")
+    for section in ("sdhn", "eval"):
+        if not isinstance(config.setdefault(section, {}), dict):
+            raise FigureError(f"{path}: section {section!r} is not a mapping")
+    return config
+
+
+def _read_spec(path: Path) -> dict[str, Any]:
+    if not path.exists():
+        return {}
+    try:
+        spec = json.loads(path.read_bytes())
+    except (OSError, ValueError) as e:
+        raise FigureError(f"{path}: unreadable run spec ({type(e).__name__})") from None
+    if not isinstance(spec, dict):
+        raise FigureError(f"{path}: not a run spec (expected a JSON object)")
+    return spec
+
+
 def read_run(path: Path) -> Run:
     cfg_file, csv_file = path / "config.yaml", path / "metrics.csv"
-    missing = [f.name for f in (cfg_file, csv_file) if not f.exists()]
+    missing = [f.name for f in (cfg_file, csv_file) if not f.is_file()]
     if missing:
         raise FigureError(f"{path} is not a finished trainer run (missing {', '.join(missing)})")
-    config = yaml.safe_load(cfg_file.read_text())
-    spec = json.loads((path / "run.json").read_text()) if (path / "run.json").exists() else {}
-    return Run(path=path, task=str(spec.get("task", config["env"]["name"])),
+    config = _read_config(cfg_file)
+    spec = _read_spec(path / "run.json")
+    try:
+        seed = int(spec.get("seed", config["train"].get("seed")))
+    except (TypeError, ValueError):
+        raise FigureError(f"{path}: no integer seed in run.json or config.yaml") from None
+    task = str(spec.get("task", config["env"]["name"]))
+    if task not in env_names():
+        raise FigureError(f"{path}: task {task!r} is not an environment; allowed: "
+                          f"{', '.join(env_names())}")
+    return Run(path=path, task=task,
                method=str(spec.get("method", method_of(config))),
-               seed=int(spec.get("seed", config["train"]["seed"])), config=config,
+               seed=seed, config=config,
                suite=spec.get("suite"), series=read_metrics(csv_file))
 
 
@@ -214,9 +274,7 @@ def scripted_baselines(runs: list[Run], instances: int | None = None,
     seed and reward the runs were evaluated with (``instances`` overrides the count). They are
     deterministic, and the planner takes minutes on the larger teams, so results are kept in
     ``cache`` (JSON, keyed by everything they depend on) across calls."""
-    known: dict[str, dict[str, Any]] = {}
-    if cache is not None and cache.is_file():
-        known = json.loads(cache.read_text())
+    known = _read_cache(cache) if cache is not None else {}
     out: Scripted = {}
     for task, group in _by(runs, "task").items():
         if not task.startswith("maif"):
@@ -227,15 +285,45 @@ def scripted_baselines(runs: list[Run], instances: int | None = None,
         for policy in SCRIPTED_LABELS:
             for _, which in SETS:
                 key = f"{task}/{which}/{policy}/k={k}/seed={seed}/{group[0].reward}"
-                if key not in known:
-                    known[key] = asdict(evaluate_scripted(
-                        task, which, policy, instances=k, seed=seed, reward=group[0].reward))
-                out[task][(policy, which)] = ScriptedResult(**known[key])
+                result = _cached_result(known.get(key))
+                if result is None:
+                    result = evaluate_scripted(task, which, policy, instances=k, seed=seed,
+                                               reward=group[0].reward)
+                    known[key] = asdict(result)
+                out[task][(policy, which)] = result
     if cache is not None:
         tmp = cache.with_suffix(".tmp")
         tmp.write_text(json.dumps(known, indent=1, sort_keys=True))
         tmp.replace(cache)
     return out
+
+
+def _read_cache(cache: Path) -> dict[str, Any]:
+    """The scripted baselines' cache; an unreadable one is ignored (it is recomputed and
+    rewritten: it only saves time)."""
+    if not cache.is_file():
+        return {}
+    try:
+        known = json.loads(cache.read_bytes())
+    except (OSError, ValueError):
+        return {}
+    return known if isinstance(known, dict) else {}
+
+
+def _cached_result(entry: Any) -> ScriptedResult | None:
+    """A cache entry as a ScriptedResult, or None if it is not one (recomputed)."""
+    if not isinstance(entry, dict):
+        return None
+    try:
+        result = ScriptedResult(**entry)
+    except TypeError:
+        return None
+    numbers = (result.success_rate, result.episode_return, result.collisions, result.lower_bound)
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in numbers):
+        return None
+    if result.makespan is not None and not isinstance(result.makespan, int | float):
+        return None
+    return result
 
 
 # --- figures ----------------------------------------------------------------------------------
@@ -443,8 +531,16 @@ def latest_ph(run: Run) -> tuple[int, np.ndarray] | None:
     snaps = sorted((run.path / PH_DIR).glob("ph_*.npz"))
     if not snaps:
         return None
-    with np.load(snaps[-1]) as z:
-        return int(z["step"]), np.array(z["ph_last"])
+    try:
+        with np.load(snaps[-1], allow_pickle=False) as z:
+            step, ph = int(z["step"]), np.array(z["ph_last"], dtype=float)
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as e:
+        raise FigureError(f"{snaps[-1]}: not a P_H snapshot ({type(e).__name__}); delete it "
+                          "to draw the heatmap from the one before") from None
+    if ph.ndim != 2 or not np.isfinite(ph).all():
+        raise FigureError(f"{snaps[-1]}: ph_last is not a finite N x M matrix "
+                          f"(shape {ph.shape}); delete it to use the one before")
+    return step, ph
 
 
 def fig_ph_heatmaps(runs: list[Run], out: Path) -> list[Path]:
@@ -531,7 +627,8 @@ def results_table(runs: list[Run], scripted: Scripted | None = None) -> str:
                         if (v := r.final(f"{prefix}/{infix}success_rate")) is not None]
                 cells += [_fmt(succ, 2), _ms(*final_makespan(group, infix))]
             rets = [v for r in group if (v := r.final(f"{prefix}/episodic_return")) is not None]
-            steps = max(int(s[0][-1]) for r in group for s in r.series.values() if len(s[0]))
+            steps = max((int(s[0][-1]) for r in group for s in r.series.values() if len(s[0])),
+                        default=0)
             lines.append(f"| {task} | {METHOD_LABEL.get(method, method).replace('$', '')} | "
                          f"{len(group)} | {steps} | {' | '.join(cells)} | "
                          f"{_fmt(rets)} ({group[0].reward}) |")
@@ -550,8 +647,17 @@ def results_table(runs: list[Run], scripted: Scripted | None = None) -> str:
 def make_figures(logdir: Path, outdir: Path, scripted_instances: int | None = None) -> list[Path]:
     """Every figure and the table; returns the files written. ``scripted_instances`` overrides
     how many evaluation instances the scripted baselines play (default: the runs')."""
+    if scripted_instances is not None and scripted_instances < 1:
+        raise FigureError(f"--scripted-instances {scripted_instances}: allowed: an integer >= 1")
     runs = load_runs(logdir)
-    outdir.mkdir(parents=True, exist_ok=True)
+    if outdir.exists() and not outdir.is_dir():
+        raise FigureError(f"{outdir} exists and is not a directory: name a directory for the "
+                          "figures")
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FigureError(f"{outdir}: cannot create the output directory: {e.strerror or e}"
+                          ) from None
     scripted = scripted_baselines(runs, scripted_instances, outdir / SCRIPTED_CACHE)
     written: list[Path] = []
     skipped: list[str] = []
@@ -597,6 +703,9 @@ def main(argv: list[str] | None = None) -> int:
         written = make_figures(args.logdir, args.outdir, args.scripted_instances)
     except FigureError as e:
         print(f"make_figures: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # an unwritable output directory, a full disk
+        print(f"make_figures: {e.filename or args.outdir}: {e.strerror or e}", file=sys.stderr)
         return 2
     for path in written:
         print(path)

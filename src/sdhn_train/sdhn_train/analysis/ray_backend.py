@@ -5,7 +5,11 @@ asks for the run's declared CPU count (``train.threads`` per data-parallel rank,
     run_experiments configs/suites/paper.yaml --budget paper --logdir /shared/runs/paper \\
         --backend ray --address ray://head:10001
 
-Without ``--address`` (and without ``RAY_ADDRESS``) a local Ray is started and stopped again.
+Without ``--address`` (and without ``RAY_ADDRESS``) a local Ray is started and stopped again,
+bound to 127.0.0.1 only (Ray has no authentication: whoever reaches its ports can run code). A
+cluster started by ``ray start`` is the user's: keep it on a private network or behind a firewall
+(docs/reliability-runner.md). The driver holds ``LOGDIR/.runner.lock`` like the local runner, so
+two runners never share a log directory.
 ``--logdir`` must be a path every node sees (a shared file system mounted at the same path): each
 task writes its run directory there, with the same files and guarantees as the local runner.
 
@@ -25,9 +29,11 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any, TextIO
@@ -35,16 +41,20 @@ from typing import Any, TextIO
 from sdhn_train.analysis.experiments import (
     DONE,
     ExperimentError,
+    LogdirLock,
     RunSpec,
+    check_runs,
     finish,
     prepare,
     result_line,
+    run_dir,
     run_state,
 )
 from sdhn_train.sections import TrainConfig
 
 ATTEMPTS = "attempts.jsonl"
 MAX_RETRIES = 3  # per task, on a worker's or node's death
+LOOPBACK = "127.0.0.1"  # what a Ray started here binds to (GCS, raylet, workers)
 
 
 # Prefix of the training command: ask the kernel to SIGKILL the process when the Ray worker that
@@ -58,9 +68,10 @@ _WITH_PARENT = ("import ctypes, os, sys; ctypes.CDLL(None).prctl(1, 9); "
 def run_one(spec: dict[str, Any], logdir: str) -> dict[str, Any]:
     """One run, start to finish or resumed: the body of a Ray task (also callable directly)."""
     run = RunSpec(**spec)
+    check_runs([run])  # names are path components: checked again where they are used
     root = Path(logdir)
     root.mkdir(parents=True, exist_ok=True)
-    d = root / run.name
+    d = run_dir(run, root)
     with open(root / f".{run.name}.lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # a previous attempt's trainer may still be exiting
         if run_state(run, root) == "done":  # finished by an attempt that died afterwards
@@ -85,8 +96,11 @@ def run_one(spec: dict[str, Any], logdir: str) -> dict[str, Any]:
             rc = proc.wait()
         wall = time.perf_counter() - start
         if rc != 0:
-            return {"run": run.name, "ok": False, "wall": wall, "rc": rc}
-        return {"run": run.name, "ok": True, "wall": wall, "marker": finish(run, root, wall)}
+            return {"run": run.name, "ok": False, "wall": wall, "rc": f"exit {rc}"}
+        try:
+            return {"run": run.name, "ok": True, "wall": wall, "marker": finish(run, root, wall)}
+        except ExperimentError as e:
+            return {"run": run.name, "ok": False, "wall": wall, "rc": str(e)}
 
 
 def _ray_node() -> str | None:
@@ -114,24 +128,58 @@ def run_suite_ray(runs: list[RunSpec], logdir: Path, address: str | None = None,
     Returns counts {'done', 'skipped', 'failed'} like ``run_suite``."""
     import ray  # only the Ray backend needs it
 
+    if num_cpus is not None and num_cpus < 1:
+        raise ExperimentError(f"--num-cpus {num_cpus}: allowed: an integer >= 1")
+    check_runs(runs)
     logdir = logdir.resolve()
     logdir.mkdir(parents=True, exist_ok=True)
-    if len({r.name for r in runs}) != len(runs):
-        raise ExperimentError("the suite names the same run twice")
+    with LogdirLock(logdir):
+        return _run_suite_ray_locked(ray, runs, logdir, address=address, num_cpus=num_cpus,
+                                     out=out, max_retries=max_retries)
+
+
+def _start_ray(ray: Any, address: str | None, num_cpus: int | None) -> None:
+    """Connect to ``address`` / ``RAY_ADDRESS``, or start a local Ray bound to loopback only:
+    Ray has no authentication, so a local one must not listen where others can reach it. Keeps
+    this process's SIGTERM handler (Ray's own dumps a C++ stack and exits 1)."""
+    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
+                              "configure_logging": False}
+    on_term = signal.getsignal(signal.SIGTERM)
+    if address or os.environ.get("RAY_ADDRESS"):
+        ray.init(address=address, **kwargs)
+    else:
+        ray.init(num_cpus=num_cpus, _node_ip_address=LOOPBACK, **kwargs)
+    if threading.current_thread() is threading.main_thread() and on_term is not None:
+        signal.signal(signal.SIGTERM, on_term)
+
+
+def _largest_node_cpus(ray: Any) -> int:
+    return max((int(n.get("Resources", {}).get("CPU", 0)) for n in ray.nodes() if n.get("Alive")),
+               default=0)
+
+
+def _run_suite_ray_locked(ray: Any, runs: list[RunSpec], logdir: Path, *, address: str | None,
+                          num_cpus: int | None, out: TextIO,
+                          max_retries: int) -> dict[str, int]:
     states = {r.name: run_state(r, logdir) for r in runs}
     todo = [r for r in runs if states[r.name] != "done"]
     counts = {"done": 0, "skipped": len(runs) - len(todo), "failed": 0}
     cpus = {r.name: max(1, _cpus(r.config(logdir).train)) for r in todo}
+    if num_cpus is not None and todo and max(cpus.values()) > num_cpus:
+        big = max(todo, key=lambda r: cpus[r.name])
+        raise ExperimentError(f"--num-cpus {num_cpus}: run {big.name} needs {cpus[big.name]} "
+                              "CPUs (train.threads x train.learner_processes); it would wait "
+                              "forever")
 
     started_here = not ray.is_initialized()
     if started_here:
-        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False,
-                                  "configure_logging": False}
-        if address or os.environ.get("RAY_ADDRESS"):
-            ray.init(address=address, **kwargs)
-        else:
-            ray.init(num_cpus=num_cpus, **kwargs)
+        _start_ray(ray, address, num_cpus)
     try:
+        largest = _largest_node_cpus(ray)
+        too_big = [r for r in todo if cpus[r.name] > largest]
+        if too_big:
+            raise ExperimentError(f"run {too_big[0].name} needs {cpus[too_big[0].name]} CPUs; "
+                                  f"the largest Ray node has {largest}: it would wait forever")
         total_cpus = int(ray.cluster_resources().get("CPU", 0))
         print(f"[experiments] {len(runs)} runs: {counts['skipped']} finished earlier, "
               f"{sum(states[r.name] == 'partial' for r in todo)} to resume, "

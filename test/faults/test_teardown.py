@@ -18,6 +18,10 @@ HANGING_NODE = textwrap.dedent("""
     from sdhn_sim.ros.runner import run_node
 
     class Stuck(Node):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            print("up", flush=True)  # built after the runner installed its signal handlers
+
         def destroy_node(self):
             print("destroying", flush=True)
             time.sleep(3600)  # holds the main thread like a deadlocked C++ destructor
@@ -29,7 +33,11 @@ HANGING_NODE = textwrap.dedent("""
 def test_hanging_teardown_ends_the_process_with_its_stacks() -> None:
     proc = subprocess.Popen([sys.executable, "-c", HANGING_NODE], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    time.sleep(0.5)
+    # SIGINT only once the runner's handlers are in place: sent during the imports (0.5 s after
+    # the start was too early at load 20+) it ended the process before run_node ran.
+    assert proc.stdout is not None
+    first = proc.stdout.readline()
+    assert first.strip() == "up", (first, proc.stderr.read() if proc.poll() is not None else "")
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and proc.poll() is None:
         proc.send_signal(signal.SIGINT)  # until the runner's handler is installed and takes it
@@ -41,6 +49,6 @@ def test_hanging_teardown_ends_the_process_with_its_stacks() -> None:
     else:
         proc.kill()
         raise AssertionError(f"the node did not end: {proc.communicate()}")
-    assert "destroying" in out, (out, err)
+    assert "destroying" in first + out, (out, err)
     assert proc.returncode == 1, (proc.returncode, err)
     assert "Timeout" in err and "destroy_node" in err, err  # the stack says where it hung

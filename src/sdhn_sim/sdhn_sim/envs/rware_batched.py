@@ -47,7 +47,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .api import EpisodeStats, FloatArray, StepResult
-from .rware_env import NUM_ACTIONS, RWARE_DIFFICULTIES, rware_env_id
+from .rware_env import NUM_ACTIONS, RWARE_DIFFICULTIES, check_batch_args, rware_env_id
 
 # rware's registered sizes: (shelf rows, shelf columns); column height 8 for all of them
 RWARE_LAYOUTS = {"tiny": (1, 3), "small": (2, 3), "medium": (2, 5), "large": (3, 5)}
@@ -114,12 +114,7 @@ class RwareBatchedEnv:
         name: str | None = None,
     ) -> None:
         self.env_id = rware_env_id(num_robots, size, difficulty)  # validates size/difficulty/N
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        if int(max_steps) < 1:
-            raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}")
-        if int(seed) < 0:
-            raise ValueError(f"seed must be >= 0, got {seed}")
+        check_batch_args(num_envs, max_steps, seed)
         if int(sensor_range) < 1:
             raise ValueError(f"sensor_range must be >= 1, got {sensor_range}")
         self.name = name or self.env_id

@@ -42,6 +42,16 @@ def rware_env_id(num_robots: int, size: str = "small", difficulty: str = "normal
     return f"rware-{size}-{int(num_robots)}ag{RWARE_DIFFICULTIES[difficulty]}-v2"
 
 
+def check_batch_args(num_envs: int, max_steps: int, seed: int) -> None:
+    """The arguments both RWARE backends share, refused the same way (ValueError)."""
+    if int(num_envs) < 1:
+        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    if int(max_steps) < 1:
+        raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}")
+    if int(seed) < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+
+
 def make_rware_gym(env_id: str, max_steps: int) -> Any:
     """The raw gymnasium env as rware registers it (``gym.make``), with our step limit."""
     import gymnasium as gym
@@ -70,12 +80,7 @@ class RwareEnv:
         max_steps: int = 500,
         name: str | None = None,
     ) -> None:
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        if int(max_steps) < 1:
-            raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}")
-        if int(seed) < 0:
-            raise ValueError(f"seed must be >= 0, got {seed}")
+        check_batch_args(num_envs, max_steps, seed)
         self.env_id = rware_env_id(num_robots, size, difficulty)
         self.name = name or self.env_id
         self.num_envs = int(num_envs)

@@ -132,7 +132,8 @@ def planner_makespans(task: str, which: str, cache_dir: Path | None = None, *,
                       progress: bool = False) -> list[int | None]:
     """The scripted planner's makespan on every instance of the set (None: it did not finish),
     computed in chunks and cached in ``cache_dir/planner-<task>-<which>-<checksum>.json`` (the
-    planner is slow on large teams; an interrupted computation resumes from the chunks done)."""
+    planner is slow on large teams; an interrupted computation resumes from the chunks done,
+    and processes computing the same set at once skip each other's chunks)."""
     inst = set_instances(task, which)
     path = None
     done: dict[str, int | None] = {}
@@ -144,6 +145,8 @@ def planner_makespans(task: str, which: str, cache_dir: Path | None = None, *,
     total = inst.num_instances
     for start in range(0, total, chunk):
         ids = list(range(start, min(start + chunk, total)))
+        if path is not None and path.is_file():  # another process may have added chunks
+            done = {**json.loads(path.read_text())["makespan"], **done}
         if all(str(k) in done for k in ids):
             continue
         env = MaifEnv(inst, num_envs=len(ids), seed=seed, name=task, instance_ids=ids,

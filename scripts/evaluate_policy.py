@@ -99,6 +99,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sets", nargs="+", default=["heldout_large", "train"],
                    help=f"instance sets to play, of {EVAL_SETS}")
     p.add_argument("--sample", action="store_true", help="sample actions instead of argmax")
+    p.add_argument("--unstick", type=int, default=0, metavar="K",
+                   help="greedy, but a robot off its goal that has not moved for K steps "
+                        "samples its action until it moves (0 = off)")
     p.add_argument("--runtime", choices=("numpy", "torch"), default="numpy")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--wedge-steps", type=int, default=WEDGE_STEPS,
@@ -111,6 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     bad = [s for s in args.sets if s not in EVAL_SETS]
     if bad:
         print(f"evaluate_policy: --sets: {bad} not allowed; allowed: {EVAL_SETS}", file=sys.stderr)
+        return 2
+    if args.unstick < 0 or (args.unstick and args.sample):
+        print("evaluate_policy: --unstick must be an integer >= 0, and only with greedy play",
+              file=sys.stderr)
         return 2
     if args.wedge_steps < 1:
         print("evaluate_policy: --wedge-steps must be an integer >= 1", file=sys.stderr)
@@ -128,19 +135,20 @@ def main(argv: list[str] | None = None) -> int:
             inst = set_instances(task, which)
             t0 = time.monotonic()
             recs = evaluate_set(policy, task, which, sample=args.sample, seed=args.seed,
-                                wedge_steps=args.wedge_steps)
+                                wedge_steps=args.wedge_steps, unstick=args.unstick)
             took = time.monotonic() - t0
             plan = None if args.no_planner else planner_makespans(
                 task, which, args.planner_cache, progress=True)
             summary = summarise(recs, plan, inst.num_formations)
-            mode = "sampled" if args.sample else "greedy"
+            mode = ("sampled" if args.sample else
+                    f"greedy, sampled when stuck {args.unstick}" if args.unstick else "greedy")
             print(f"[eval] {label} {task}/{which} ({mode}, {args.runtime}): success "
                   f"{summary['success_rate']:.3f} {summary['success_ci95_maps']}, makespan ratio "
                   f"{summary.get('makespan_ratio_mean')}, deadlocks "
                   f"{summary['failures']['deadlock']}, {took:.0f} s", flush=True)
             results.append({"policy": label, "actor": path.name, "task": task, "set": which,
                             "set_checksum": set_checksum(inst), "mode": mode,
-                            "runtime": args.runtime, "seed": args.seed,
+                            "runtime": args.runtime, "seed": args.seed, "unstick": args.unstick,
                             "wedge_steps": args.wedge_steps, "summary": summary,
                             "records": records_json(recs), "planner_makespan": plan})
     if args.out:

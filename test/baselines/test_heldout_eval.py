@@ -118,3 +118,29 @@ def test_evaluate_policy_script(tmp_path: Path) -> None:
     bad = subprocess.run([*cmd[:3], "--sets", "procedural"], capture_output=True, text=True,
                          timeout=600, check=False)
     assert bad.returncode == 2 and "--sets" in bad.stderr
+
+
+class CountingStayPolicy(StayPolicy):
+    """Stays when greedy, moves down when sampled; counts the sampled calls."""
+
+    sampled = 0
+
+    def act(self, obs: Any, hidden: Any, greedy: bool, rng: np.random.Generator,
+            robot_id: Any = None) -> tuple[Any, Any, Any]:
+        a, lp, h = super().act(obs, hidden, greedy, rng, robot_id)
+        if not greedy:
+            self.sampled += 1
+            a = np.full_like(a, 2)  # down
+        return a, lp, h
+
+
+def test_unstick_samples_only_for_robots_that_stopped() -> None:
+    spec = ActorRuntime.from_file(TINY).spec
+    plain = CountingStayPolicy(spec)
+    evaluate_set(plain, "maif-tiny", "heldout")
+    assert plain.sampled == 0
+    unstick = CountingStayPolicy(spec)
+    evaluate_set(unstick, "maif-tiny", "heldout", unstick=5)
+    # stuck from step 5 on, unstuck by moving down, stuck again 5 steps later (or for good
+    # against the bottom wall): sampled calls come every few steps, not every step
+    assert 0 < unstick.sampled < 500

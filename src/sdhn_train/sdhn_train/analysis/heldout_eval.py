@@ -88,9 +88,11 @@ def set_checksum(inst: MaifInstances) -> str:
 
 
 def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False, seed: int = 0,
-                 wedge_steps: int = WEDGE_STEPS,
-                 reward: str = "corrected") -> list[InstanceResult]:
-    """One episode per instance of set ``which`` of ``task``, all in one batch."""
+                 wedge_steps: int = WEDGE_STEPS, reward: str = "corrected",
+                 unstick: int = 0) -> list[InstanceResult]:
+    """One episode per instance of set ``which`` of ``task``, all in one batch. ``unstick`` > 0
+    (with greedy play): a robot off its goal that has not moved for ``unstick`` steps samples
+    its action from the policy instead of taking the argmax, until it moves."""
     inst = set_instances(task, which)
     b = inst.num_instances
     env = MaifEnv(inst, num_envs=b, seed=seed, name=task, instance_order="round_robin",
@@ -104,8 +106,14 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
     out: dict[int, InstanceResult] = {}
     while len(out) < b:
         before, goals = env.positions, env.goals
-        act, _, h = policy.act(obs.reshape(b * n, -1), h, greedy=not sample, rng=rng,
-                               robot_id=ids)
+        flat = obs.reshape(b * n, -1)
+        act, _, h_next = policy.act(flat, h, greedy=not sample, rng=rng, robot_id=ids)
+        if unstick > 0 and not sample:
+            stuck = (still >= unstick) & np.any(before != goals, axis=2)
+            if stuck.any():  # same hidden state in, so the same next hidden state out
+                drawn, _, _ = policy.act(flat, h, greedy=False, rng=rng, robot_id=ids)
+                act = np.where(stuck.reshape(-1), drawn, act)
+        h = h_next
         res = env.step(act.reshape(b, n))
         after = env.positions
         for e, w in env.final_worlds.items():

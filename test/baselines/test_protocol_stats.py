@@ -47,10 +47,10 @@ def test_probability_of_improvement_known_values() -> None:
     assert ps.probability_of_improvement([3, 5, 6], [2, 4]).point == pytest.approx(5 / 6)
     # ties count a half: (1,2) 0, (2,2) 0.5, (3,2) 1 -> 1.5 / 3
     assert ps.probability_of_improvement([1, 2, 3], [2, 2, 2]).point == pytest.approx(0.5)
-    sure = ps.probability_of_improvement([3, 4, 5], [0, 1, 2], reps=200)
+    sure = ps.probability_of_improvement([3, 4, 5], [0, 1, 2], reps=100)
     assert sure.low == sure.high == 1.0
     unsure = ps.probability_of_improvement([0.8, 0.9, 0.7, 0.85], [0.75, 0.88, 0.8, 0.82],
-                                           reps=300)
+                                           reps=100)
     assert unsure.low < 0.5 < unsure.high
 
 

@@ -21,7 +21,7 @@ from typing import Any, TypeVar
 from sdhn_policy.features import TRANSFORMS
 from sdhn_sim import overrides, yaml_io
 from sdhn_sim.envs.maif import MAIF_REWARDS
-from sdhn_sim.envs.registry import env_names
+from sdhn_sim.envs.registry import TRAINING_SETS, env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS, get_algorithm
 from sdhn_train.learners.ppo import PPOConfig
 from sdhn_train.sections import (
@@ -137,7 +137,7 @@ def validate(cfg: Config, resuming: bool = False) -> None:
     need(cfg.env.reward in MAIF_REWARDS, "env.reward", ", ".join(MAIF_REWARDS), cfg.env.reward)
     features = ("auto", *TRANSFORMS)
     need(cfg.env.features in features, "env.features", ", ".join(features), cfg.env.features)
-    need(cfg.env.instance_set in ("train", "large"), "env.instance_set", "train, large",
+    need(cfg.env.instance_set in TRAINING_SETS, "env.instance_set", ", ".join(TRAINING_SETS),
          cfg.env.instance_set)
     positive = {
         "env.num_envs": cfg.env.num_envs, "train.total_steps": cfg.train.total_steps,

@@ -46,8 +46,9 @@ class EnvConfig:
     reward: str = opt("corrected", "MAIF reward, a name of sdhn_sim.envs.maif.MAIF_REWARDS "
                                    "(corrected, reference; ignored by RWARE)")
     instance_set: str = opt("train", "MAIF training instances: train (the 100 fixed), large "
-                                     "(1000 from another seed); evaluation always uses train "
-                                     "and heldout")
+                                     "(1000 from another seed), procedural (a fresh map per "
+                                     "episode from a third seed); evaluation always uses "
+                                     "train and heldout")
     features: str = opt("auto", "actor/critic input features: auto (maif-ego/1 for MAIF, "
                                 "identity otherwise) or a name of sdhn_policy.features.TRANSFORMS")
 

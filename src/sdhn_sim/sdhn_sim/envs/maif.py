@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .api import BoolArray, EpisodeStats, FloatArray, IntArray, StepResult
-from .maif_instances import MaifConfig, MaifInstances, load_instances
+from .maif_instances import MaifConfig, MaifInstances, ProceduralInstances, load_instances
 from .render import render_grid
 
 NUM_ACTIONS = 5
@@ -129,7 +129,7 @@ class MaifEnv:
 
     def __init__(
         self,
-        config: MaifConfig | MaifInstances | str,
+        config: MaifConfig | MaifInstances | ProceduralInstances | str,
         num_envs: int = 1,
         seed: int = 0,
         *,
@@ -140,7 +140,8 @@ class MaifEnv:
         name: str | None = None,
         reward: str = DEFAULT_REWARD,
     ) -> None:
-        inst = config if isinstance(config, MaifInstances) else load_instances(config)
+        inst = (config if isinstance(config, MaifInstances | ProceduralInstances)
+                else load_instances(config))
         cfg = inst.config
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
@@ -179,10 +180,6 @@ class MaifEnv:
         self._p = p = s + 2 * RADIUS
         self._inv = np.float32(1.0 / (s - 1))
 
-        m = inst.obstacles.shape[0]
-        pmaps = np.ones((m, p, p), dtype=np.int8)
-        pmaps[:, RADIUS : RADIUS + s, RADIUS : RADIUS + s] = inst.obstacles
-        self._pmaps = pmaps
         self._canvas = np.ones((b, p, p), dtype=np.int8)
         self._flat = self._canvas.reshape(-1)  # view
         self._occ = np.full(b * p * p, -1, dtype=np.int64)
@@ -244,10 +241,11 @@ class MaifEnv:
     def _reset_env(self, b: int) -> None:
         k = self._next_instance(b)
         obstacles, starts, goals = self.instances.instance(k)
-        del obstacles
         p, s = self._p, self.size
         self._occ[self._cell[b]] = -1
-        self._canvas[b] = self._pmaps[k // self.instances.starts.shape[1]]
+        # the map padded by RADIUS cells of wall (built here: a procedural set has no map list)
+        self._canvas[b] = 1
+        self._canvas[b, RADIUS : RADIUS + s, RADIUS : RADIUS + s] = obstacles
         cells = b * p * p + (starts[:, 1] + RADIUS) * p + (starts[:, 0] + RADIUS)
         self._flat[cells] = 2
         self._occ[cells] = self._robot_ids[b * self.num_robots : (b + 1) * self.num_robots]

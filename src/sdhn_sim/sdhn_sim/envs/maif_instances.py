@@ -8,6 +8,11 @@ An instance set holds ``num_maps`` obstacle maps and ``num_formations`` formatio
 instance id ``k`` is map ``k // num_formations``, formation ``k % num_formations``.
 Sets for the shipped configurations live in ``sdhn_sim/data/<name>.npz`` (written by
 ``scripts/make_maif_instances.py``); the others are generated on demand by the same code.
+
+Sets of a configuration with generator seed ``s`` (``instance_seed``), pairwise disjoint seeds:
+``train`` (s, 10 maps x 10), ``heldout`` (s + 500,000, 10 x 10), ``large`` (s + 1,000,000,
+100 x 10, to train on), ``heldout_large`` (s + 2,000,000, 200 x 5, evaluation only) and the
+``procedural`` training stream (one map per instance, seeded ``[s + 3,000,000, k]``).
 """
 
 from __future__ import annotations
@@ -72,6 +77,15 @@ HELDOUT_SEED_OFFSET = 500_000
 
 LARGE_SEED_OFFSET = 1_000_000
 LARGE_MAPS = 100
+HELDOUT_LARGE_SEED_OFFSET = 2_000_000
+HELDOUT_LARGE_MAPS = 200
+HELDOUT_LARGE_FORMATIONS = 5
+"""The large held-out set: 200 maps x 5 formations = 1,000 instances from seed + 2,000,000. No
+training run ever sees it; it is what a policy's generalisation is measured on."""
+PROCEDURAL_SEED_OFFSET = 3_000_000
+PROCEDURAL_MAPS = 1_000_000
+"""The procedural training stream: map ``k`` (one formation each) is drawn from the generator
+seeded ``[instance_seed + 3,000,000, k]``; a random draw from a million maps is a fresh map."""
 
 
 def heldout_config(cfg: MaifConfig) -> MaifConfig:
@@ -84,6 +98,19 @@ def large_config(cfg: MaifConfig) -> MaifConfig:
     the 10 fixed maps learns those maps; on many maps it learns the task."""
     return dataclasses.replace(cfg, num_maps=LARGE_MAPS,
                                instance_seed=cfg.instance_seed + LARGE_SEED_OFFSET)
+
+
+def heldout_large_config(cfg: MaifConfig) -> MaifConfig:
+    """The configuration of ``cfg``'s large held-out set (1,000 instances on 200 maps)."""
+    return dataclasses.replace(cfg, num_maps=HELDOUT_LARGE_MAPS,
+                               num_formations=HELDOUT_LARGE_FORMATIONS,
+                               instance_seed=cfg.instance_seed + HELDOUT_LARGE_SEED_OFFSET)
+
+
+def procedural_config(cfg: MaifConfig) -> MaifConfig:
+    """The configuration of ``cfg``'s procedural training stream (see ``ProceduralInstances``)."""
+    return dataclasses.replace(cfg, num_maps=PROCEDURAL_MAPS, num_formations=1,
+                               instance_seed=cfg.instance_seed + PROCEDURAL_SEED_OFFSET)
 
 
 @dataclass(frozen=True)
@@ -99,12 +126,58 @@ class MaifInstances:
     def num_instances(self) -> int:
         return int(self.starts.shape[0] * self.starts.shape[1])
 
+    @property
+    def num_formations(self) -> int:
+        return int(self.starts.shape[1])
+
     def instance(
         self, k: int
     ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
         """(obstacles [size, size], starts [N, 2], goals [N, 2]) of instance id ``k``."""
         m, f = divmod(int(k), self.starts.shape[1])
         return self.obstacles[m], self.starts[m, f], self.goals[m, f]
+
+
+class ProceduralInstances:
+    """Training maps drawn fresh from the generator: instance ``k`` is map ``k`` (one formation),
+    generated on first use from its own seed ``[config.instance_seed, k]`` and kept in a small
+    cache. Deterministic per ``k``, no fixed list: a run drawing instances at random from a
+    million sees a new map almost every episode. Same interface as ``MaifInstances`` for
+    ``MaifEnv`` (``config``, ``num_instances``, ``num_formations``, ``instance(k)``)."""
+
+    def __init__(self, config: MaifConfig, cache_maps: int = 512) -> None:
+        if config.num_formations != 1:
+            raise ValueError(f"{config.name}: a procedural stream has one formation per map")
+        self.config = config
+        self._cached = functools.lru_cache(maxsize=cache_maps)(self._generate)
+
+    @property
+    def num_instances(self) -> int:
+        return self.config.num_maps
+
+    @property
+    def num_formations(self) -> int:
+        return 1
+
+    def instance(
+        self, k: int
+    ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """(obstacles [size, size], starts [N, 2], goals [N, 2]) of instance id ``k``."""
+        return self._cached(int(k))
+
+    def _generate(
+        self, k: int
+    ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        if not 0 <= int(k) < self.config.num_maps:
+            raise ValueError(f"instance id must be in [0, {self.config.num_maps}), got {k}")
+        rng = np.random.default_rng([self.config.instance_seed, int(k)])
+        while True:
+            grid = _draw_map(self.config, rng)
+            starts, goals = _draw_formation(self.config, rng)
+            if _all_reachable(grid, starts, goals):
+                for a in (grid, starts, goals):
+                    a.setflags(write=False)  # shared through the cache
+                return grid, starts, goals
 
 
 def reachable_from(free: npt.NDArray[np.bool_], x: int, y: int) -> npt.NDArray[np.bool_]:

@@ -7,7 +7,9 @@ Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100))
 ``instance_order`` ("random" | "round_robin"), ``reward`` ("corrected" (default) | "reference"),
 ``instance_set`` ("train" (default): the 100 fixed instances | "heldout": 100 instances drawn
 with another generator seed, for evaluation on maps never trained on | "large": 1000 instances
-(100 maps) from a third seed, to train on many maps).
+(100 maps) from a third seed, to train on many maps | "heldout_large": 1000 instances (200 maps)
+from a fourth seed, the large held-out set no training run sees | "procedural": a fresh map
+per instance from a fifth seed, a training stream with no fixed list).
 
 RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``;
 ``rware-tiny-2ag``, ``rware-tiny-4ag`` = rware's ``rware-tiny-{N}ag-v2`` (the tasks with published
@@ -29,13 +31,24 @@ from typing import Any
 
 from .api import BatchedEnv
 from .maif import MaifEnv
-from .maif_instances import MAIF_CONFIGS, heldout_config, large_config, load_instances
+from .maif_instances import (
+    MAIF_CONFIGS,
+    MaifInstances,
+    ProceduralInstances,
+    heldout_config,
+    heldout_large_config,
+    large_config,
+    load_instances,
+    procedural_config,
+)
 from .rware_batched import RwareBatchedEnv
 from .rware_env import RwareEnv
 from .single import SingleEnv
 
 MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order", "reward", "instance_set")
-INSTANCE_SETS = ("train", "heldout", "large")
+INSTANCE_SETS = ("train", "heldout", "large", "heldout_large", "procedural")
+TRAINING_SETS = ("train", "large", "procedural")
+"""The sets a training run may draw from; the held-out sets are for evaluation only."""
 RWARE_OVERRIDES = ("max_steps", "size", "difficulty", "backend")
 RWARE_TASKS = {"rware-3": 3, "rware-6": 6, "rware-9": 9, "rware-tiny-2ag": 2, "rware-tiny-4ag": 4}
 RWARE_TASK_SIZE = {"rware-tiny-2ag": "tiny", "rware-tiny-4ag": "tiny"}  # others: "small"
@@ -54,11 +67,20 @@ class Family:
 
 def _make_maif(name: str, num_envs: int, seed: int, **overrides: Any) -> BatchedEnv:
     which = overrides.pop("instance_set", "train")
+    return MaifEnv(instance_set(name, which), num_envs=num_envs, seed=seed, name=name,
+                   **overrides)
+
+
+def instance_set(name: str, which: str) -> MaifInstances | ProceduralInstances:
+    """The instances of MAIF configuration ``name``'s set ``which`` (one of INSTANCE_SETS)."""
     if which not in INSTANCE_SETS:
         raise ValueError(f"instance_set must be one of {list(INSTANCE_SETS)}, got {which!r}")
     cfg = MAIF_CONFIGS[name]
-    cfg = {"train": cfg, "heldout": heldout_config(cfg), "large": large_config(cfg)}[which]
-    return MaifEnv(load_instances(cfg), num_envs=num_envs, seed=seed, name=name, **overrides)
+    if which == "procedural":
+        return ProceduralInstances(procedural_config(cfg))
+    cfg = {"train": cfg, "heldout": heldout_config(cfg), "large": large_config(cfg),
+           "heldout_large": heldout_large_config(cfg)}[which]
+    return load_instances(cfg)
 
 
 def rware_task_size(name: str) -> str:

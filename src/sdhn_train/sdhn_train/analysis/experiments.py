@@ -13,8 +13,8 @@ Suite YAML (see ``configs/suites/paper.yaml``)::
       sdhn_wo_lsk: {algo: sdhn, set: {sdhn.skew_loss: false}}
     tasks:                         # task (env name) -> overrides for that task ({} = none)
       maif-10: {}
-    experiments:                   # which methods run on which tasks
-      - {methods: [sdhn, sdhn_wo_lsk], tasks: [maif-10]}
+    experiments:                   # which methods run on which tasks (a group may name its
+      - {methods: [sdhn, sdhn_wo_lsk], tasks: [maif-10]}  # own seeds: seeds: [1, ..., 10])
     seeds: [1, 2, 3]
     budgets:                       # --budget NAME: overrides for every run (+ optional seeds)
       quick: {seeds: [1], set: {train.total_steps: 2048}}
@@ -187,8 +187,12 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
         raise ExperimentError(f"{path}: experiments: expected a list of {{methods: [..], "
                               f"tasks: [..]}}, got {groups!r}")
     pairs: list[tuple[str, str]] = []
+    group_seeds: dict[tuple[str, str], list[int]] = {}  # a group's own seeds (protocol suites)
     for i, group in enumerate(groups):
         g = _mapping(group, f"{path}: experiments[{i}]")
+        gs = _seeds(g["seeds"], f"{path}: experiments[{i}]") if "seeds" in g else seeds
+        if "seeds" in b:  # a budget's seeds (e.g. a quick check's one seed) win
+            gs = seeds
         for t in _names(g.get("tasks", []), f"{path}: experiments[{i}].tasks"):
             for m in _names(g.get("methods", []), f"{path}: experiments[{i}].methods"):
                 if m not in methods:
@@ -199,9 +203,12 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
                                           f"not in tasks ({', '.join(tasks)})")
                 if (t, m) not in pairs:
                     pairs.append((t, m))
+                group_seeds[(t, m)] = sorted(set(group_seeds.get((t, m), [])) | set(gs))
     runs = []
-    for seed in seeds:
+    for seed in sorted({x for v in group_seeds.values() for x in v}, key=_seed_order(seeds)):
         for t, m in pairs:
+            if seed not in group_seeds[(t, m)]:
+                continue
             overrides = {**_mapping(b.get("set"), f"budgets.{budget}.set"),
                          **_mapping(tasks[t], f"tasks.{t}"),
                          **_mapping(methods[m].get("set"), f"methods.{m}.set")}
@@ -216,6 +223,12 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
         raise ExperimentError(f"{path}: budget {budget!r} selects no runs (no experiments, "
                               "methods or tasks)")
     return runs
+
+
+def _seed_order(seeds: list[int]) -> Any:
+    """Sort key: the suite's seeds in their listed order, then any others ascending."""
+    pos = {x: i for i, x in enumerate(seeds)}
+    return lambda x: (pos.get(x, len(pos)), x)
 
 
 # --- one run ----------------------------------------------------------------------------------

@@ -39,6 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--num-cpus", type=int, default=None,
                    help="ray backend, local Ray only: CPUs it offers (default: all cores)")
     p.add_argument("--list", action="store_true", help="print the runs and their state, run none")
+    p.add_argument("--methods", nargs="+", default=None,
+                   help="run only these methods of the suite (e.g. sdhn mappo first)")
     args = p.parse_args(argv)
 
     def _terminated(signum: int, frame: Any) -> None:
@@ -47,6 +49,12 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _terminated)
     try:
         runs = load_suite(args.suite, args.budget)
+        if args.methods:
+            known = sorted({r.method for r in runs})
+            unknown = [m for m in args.methods if m not in known]
+            if unknown:
+                raise ExperimentError(f"--methods: {unknown} not in the suite; allowed: {known}")
+            runs = [r for r in runs if r.method in args.methods]
         check_runs(runs)
         check_jobs(args.jobs)
         if args.num_cpus is not None and args.num_cpus < 1:

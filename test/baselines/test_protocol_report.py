@@ -1,0 +1,74 @@
+"""The protocol report on a synthetic suite log directory with known answers: SDHN clearly
+ahead of MAPPO, level with the 1-layer variant; the verdicts and the marl-eval JSON follow."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+from sdhn_train.analysis.protocol_report import report
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _run(logdir: Path, method: str, algo: str, seed: int, *, final: float, ratio: float,
+         done: bool = True) -> None:
+    d = logdir / f"maif-10__{method}__s{seed}"
+    d.mkdir(parents=True)
+    cfg = {"env": {"name": "maif-10", "reward": "corrected", "max_steps": None},
+           "algo": {"name": algo}, "train": {"total_steps": 1000, "seed": seed},
+           "sdhn": {}}
+    (d / "config.yaml").write_text(yaml.safe_dump(cfg))
+    (d / "run.json").write_text(json.dumps({"suite": "synthetic", "method": method,
+                                            "task": "maif-10", "seed": seed}))
+    rows = ["step,wall_time,tag,value"]
+    for k, step in enumerate((500, 1000)):
+        v = final * (k + 1) / 2
+        rows += [f"{step},0,eval/success_rate,{v}", f"{step},0,eval/heldout_success_rate,{v}"]
+    (d / "metrics.csv").write_text("\n".join(rows) + "\n")
+    n_ok = round(final * 10)
+    recs = [{"instance": i, "map": i // 5, "success": i < n_ok, "makespan": 60 if i < n_ok else
+             None, "length": 60 if i < n_ok else 500, "wedged": 0, "deadlock": False}
+            for i in range(10)]
+    (d / "heldout_large.json").write_text(json.dumps(
+        {"summary": {"success_rate": final, "makespan_ratio_mean": ratio}, "records": recs}))
+    if done:
+        (d / "DONE.json").write_text("{}")
+
+
+def test_report_verdicts_on_known_data(tmp_path: Path) -> None:
+    logdir, out = tmp_path / "logs", tmp_path / "out"
+    for s in range(1, 6):
+        _run(logdir, "sdhn", "sdhn", s, final=0.9 + 0.01 * s, ratio=1.05)
+        _run(logdir, "mappo", "mappo", s, final=0.5 + 0.01 * s, ratio=1.5)
+        _run(logdir, "sdhn_generator_1_layer", "sdhn", s, final=0.9 + 0.01 * (6 - s), ratio=1.05)
+    _run(logdir, "qmix", "qmix", 1, final=0.2, ratio=2.0, done=False)
+    written = report(logdir, out, None, compute_absolute=False, reps=200)
+    assert {p.name for p in written} >= {"protocol.md", "claims.md", "marl_eval.json",
+                                         "sample_efficiency.png"}
+    claims = (out / "claims.md").read_text()
+    assert "| SDHN outperforms MAPPO on maif-10 | P(SDHN > MAPPO) = 1.00 [1.00, 1.00]" in claims
+    assert "| reproduced |" in claims
+    # SDHN / MAPPO makespan 0.7 [0.7, 0.7] is below the paper's 0.77: reproduced
+    line = next(x for x in claims.splitlines() if "23 %" in x)
+    assert "0.700" in line and line.endswith("| reproduced |")
+    proto = json.loads((out / "protocol.json").read_text())
+    assert proto["unfinished_runs"] == ["maif-10__qmix__s1"]
+    one = proto["tasks"]["maif-10"]["sdhn_generator_1_layer"]["poi_sdhn_over"]
+    assert one["point"] == 0.5 and one["ci95_low"] < 0.5 < one["ci95_high"]
+    me = json.loads((out / "marl_eval.json").read_text())
+    run = me["MAIF"]["maif-10"]["mappo"]["3"]
+    assert run["step_1"]["step_count"] == 1000
+    assert len(run["absolute_metrics"]["success_rate"]) == 10
+
+
+def test_report_refuses_an_empty_logdir(tmp_path: Path) -> None:
+    (tmp_path / "logs").mkdir()
+    res = subprocess.run([sys.executable, str(ROOT / "scripts" / "protocol_report.py"),
+                          str(tmp_path / "logs"), str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=300, check=False)
+    assert res.returncode == 2 and "protocol_report:" in res.stderr

@@ -93,7 +93,7 @@ def markdown(results: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=' '.join(__doc__.split('\n\n')[0].split()))
     p.add_argument("actors", nargs="+", type=Path, help="model directories or actor files")
     p.add_argument("--task", help="MAIF task of actor files (model directories name theirs)")
     p.add_argument("--sets", nargs="+", default=["heldout_large", "train"],

@@ -126,9 +126,9 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
                 off_goal = np.any(after[e] != goals[e], axis=1)
                 wedged = int(np.sum(off_goal & (still[e] >= wedge_steps)))
                 out[e] = InstanceResult(instance=e, map=e // inst.num_formations,
-                                        success=bool(ep.success), makespan=ep.makespan,
+                                        success=bool(ep.completed), makespan=ep.makespan,
                                         length=int(ep.length), wedged=wedged,
-                                        deadlock=not ep.success and wedged > 0)
+                                        deadlock=not ep.completed and wedged > 0)
             h[e * n:(e + 1) * n] = 0.0
             still[e] = 0
         obs = res.obs

@@ -328,7 +328,8 @@ def sample_efficiency_figure(tasks: dict[str, dict[str, MethodData]], out: Path,
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="protocol_report", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="protocol_report",
+                                description=" ".join(__doc__.split("\n\n")[0].split()))
     p.add_argument("logdir", type=Path, help="a suite's log directory (run_experiments)")
     p.add_argument("outdir", type=Path, help="where the tables, figures and JSON go")
     p.add_argument("--no-absolute", action="store_true",

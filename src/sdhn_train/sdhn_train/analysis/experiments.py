@@ -190,7 +190,7 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
     group_seeds: dict[tuple[str, str], list[int]] = {}  # a group's own seeds (protocol suites)
     for i, group in enumerate(groups):
         g = _mapping(group, f"{path}: experiments[{i}]")
-        gs = _seeds(g["seeds"], f"{path}: experiments[{i}]") if "seeds" in g else seeds
+        gs = _seeds(g["seeds"], f"{path}: experiments[{i}].seeds") if "seeds" in g else seeds
         if "seeds" in b:  # a budget's seeds (e.g. a quick check's one seed) win
             gs = seeds
         for t in _names(g.get("tasks", []), f"{path}: experiments[{i}].tasks"):

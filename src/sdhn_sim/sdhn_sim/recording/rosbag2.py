@@ -29,6 +29,8 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
+from sdhn_sim.yaml_io import YamlError, load_yaml
+
 BAG_VERSION = 9
 ROS_DISTRO = "jazzy"
 STORAGE_IDENTIFIER = "mcap"
@@ -139,9 +141,9 @@ def _parse_duration(kind: str, value: Any) -> Duration:
 
 def parse_offered_qos(text: str) -> list[QoSProfile]:
     """The profiles of an ``offered_qos_profiles`` text (QosFormatError when it is not one)."""
-    try:
-        entries = yaml.safe_load(text)
-    except yaml.YAMLError as e:
+    try:  # text from a recording: the bounded loader (no alias bombs, no duplicate keys)
+        entries = load_yaml(text, what=QOS_KEY)
+    except YamlError as e:
         raise QosFormatError(f"{QOS_KEY}: not YAML ({e})") from None
     if entries is None:
         return []
@@ -241,7 +243,7 @@ def bag_metadata(summary: BagSummary) -> dict[str, Any]:
             "type": t.type_name,
             "serialization_format": "cdr",
             # version 9: the list itself (the channel metadata holds it as YAML text)
-            "offered_qos_profiles": yaml.safe_load(t.offered_qos_yaml) or [],
+            "offered_qos_profiles": load_yaml(t.offered_qos_yaml, what=QOS_KEY) or [],
             "type_description_hash": t.type_hash,
         },
         "message_count": t.message_count,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -99,6 +100,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sets", nargs="+", default=["heldout_large", "train"],
                    help=f"instance sets to play, of {EVAL_SETS}")
     p.add_argument("--sample", action="store_true", help="sample actions instead of argmax")
+    p.add_argument("--temperature", type=float, default=1.0, metavar="T",
+                   help="sampled play (--sample, --unstick) draws from softmax(logits / T); "
+                        "T < 1 leans towards the argmax (default 1: the policy itself)")
     p.add_argument("--unstick", type=int, default=0, metavar="K",
                    help="greedy, but a robot off its goal that has not moved for K steps "
                         "samples its action until it moves (0 = off)")
@@ -119,6 +123,13 @@ def main(argv: list[str] | None = None) -> int:
         print("evaluate_policy: --unstick must be an integer >= 0, and only with greedy play",
               file=sys.stderr)
         return 2
+    if not math.isfinite(args.temperature) or args.temperature <= 0:
+        print("evaluate_policy: --temperature must be a finite number > 0", file=sys.stderr)
+        return 2
+    if args.temperature != 1.0 and not (args.sample or args.unstick):
+        print("evaluate_policy: --temperature applies to sampled play: add --sample or --unstick",
+              file=sys.stderr)
+        return 2
     if args.wedge_steps < 1:
         print("evaluate_policy: --wedge-steps must be an integer >= 1", file=sys.stderr)
         return 2
@@ -135,13 +146,16 @@ def main(argv: list[str] | None = None) -> int:
             inst = set_instances(task, which)
             t0 = time.monotonic()
             recs = evaluate_set(policy, task, which, sample=args.sample, seed=args.seed,
-                                wedge_steps=args.wedge_steps, unstick=args.unstick)
+                                wedge_steps=args.wedge_steps, unstick=args.unstick,
+                                temperature=args.temperature)
             took = time.monotonic() - t0
             plan = None if args.no_planner else planner_makespans(
                 task, which, args.planner_cache, progress=True)
             summary = summarise(recs, plan, inst.num_formations)
-            mode = ("sampled" if args.sample else
-                    f"greedy, sampled when stuck {args.unstick}" if args.unstick else "greedy")
+            at_t = f" at T={args.temperature:g}" if args.temperature != 1.0 else ""
+            mode = (f"sampled{at_t}" if args.sample else
+                    f"greedy, sampled{at_t} when stuck {args.unstick}" if args.unstick
+                    else "greedy")
             print(f"[eval] {label} {task}/{which} ({mode}, {args.runtime}): success "
                   f"{summary['success_rate']:.3f} {summary['success_ci95_maps']}, makespan ratio "
                   f"{summary.get('makespan_ratio_mean')}, deadlocks "
@@ -149,6 +163,7 @@ def main(argv: list[str] | None = None) -> int:
             results.append({"policy": label, "actor": path.name, "task": task, "set": which,
                             "set_checksum": set_checksum(inst), "mode": mode,
                             "runtime": args.runtime, "seed": args.seed, "unstick": args.unstick,
+                            "temperature": args.temperature,
                             "wedge_steps": args.wedge_steps, "summary": summary,
                             "records": records_json(recs), "planner_makespan": plan})
     if args.out:

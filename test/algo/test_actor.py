@@ -80,6 +80,37 @@ def test_runtime_act_greedy_and_sampled() -> None:
     np.testing.assert_allclose(logp, np.log(probs[a]), atol=1e-5)
 
 
+
+@pytest.mark.parametrize("temperature", [0.25, 0.5, 2.0])
+def test_runtime_samples_at_a_temperature(temperature: float) -> None:
+    """Sampled play at temperature T follows softmax(logits / T); the log-prob returned stays the
+    policy's own (what PPO trains on); T = 1 draws exactly what the plain policy draws."""
+    spec = SPECS[0]
+    rt = ActorRuntime.from_weights(_perturbed(spec).export(1))
+    obs = np.random.default_rng(2).normal(size=(1, spec.obs_size)).astype(np.float32)
+    one = np.repeat(obs, 20000, axis=0)
+    h = rt.initial_state(20000)
+    a, logp, _ = rt.act(one, h, greedy=False, rng=np.random.default_rng(0),
+                        temperature=temperature)
+    logits = rt.step(obs, rt.initial_state(1))[0][0].astype(np.float64)
+    tempered = np.exp(logits / temperature - np.max(logits / temperature))
+    freq = np.bincount(a, minlength=spec.num_actions) / len(a)
+    np.testing.assert_allclose(freq, tempered / tempered.sum(), atol=0.015)
+    policy = np.exp(actor_runtime.log_softmax(logits[None].astype(np.float32)))[0]
+    np.testing.assert_allclose(logp, np.log(policy[a]), atol=1e-5)
+    plain, _, _ = rt.act(one, h, greedy=False, rng=np.random.default_rng(0))
+    at_one, _, _ = rt.act(one, h, greedy=False, rng=np.random.default_rng(0), temperature=1.0)
+    assert np.array_equal(plain, at_one)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_runtime_refuses_a_bad_temperature(bad: float) -> None:
+    rt = ActorRuntime.from_weights(_perturbed(SPECS[0]).export(1))
+    obs = np.zeros((1, SPECS[0].obs_size), dtype=np.float32)
+    with pytest.raises(ValueError, match="temperature"):
+        rt.act(obs, rt.initial_state(1), greedy=False, rng=np.random.default_rng(0),
+               temperature=bad)
+
 def test_runtime_imports_no_torch() -> None:
     for mod in (actor_runtime, __import__("sdhn_policy.weights", fromlist=["x"])):
         tree = ast.parse(Path(mod.__file__).read_text())

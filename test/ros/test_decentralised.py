@@ -87,6 +87,7 @@ def test_sim_rejects_bad_parameters_before_any_topic(params: dict[str, object], 
 @pytest.mark.parametrize("params,field", [
     ({"robot_id": 4}, "robot_id:"),
     ({"weights_file": "/nonexistent/actor.safetensors"}, "weights_file:"),
+    ({"temperature": 0.0}, "temperature"),
 ])
 def test_actor_rejects_bad_parameters(params: dict[str, object], field: str) -> None:
     args = actor_cmd(0, N)

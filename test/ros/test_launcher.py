@@ -170,6 +170,17 @@ def test_trainer_section_is_passed_through_by_name(tmp_path: Path) -> None:
         load_config(None, ["mode=train", "trainer.seed=3"])
 
 
+def test_temperature_reaches_the_actors_only_in_sampled_deployment(weights: Path) -> None:
+    base = ["mode=deploy", "env=maif-tiny", f"weights={weights}"]
+    cfg = load_config(None, [*base, "greedy=false", "temperature=0.5"])
+    params = node_parameters(resolve(cfg))
+    assert {params[f"/sdhn/robot_{i}/actor"]["temperature"] for i in range(4)} == {0.5}
+    for bad, why in [(["greedy=false", "temperature=0"], "allowed: a number"),
+                     (["greedy=false", "temperature=nan"], "allowed: a number"),
+                     (["greedy=true", "temperature=0.5"], "only to deploy mode with greedy")]:
+        with pytest.raises(LaunchConfigError, match=f"^temperature: .*{why}"):
+            load_config(None, [*base, *bad])
+
 @pytest.mark.parametrize("ns", ["sdhn", "/sdhn/", "/1team", "/a__b", ""])
 def test_team_ns_follows_the_one_rule(ns: str) -> None:
     with pytest.raises(LaunchConfigError, match="team_ns"):

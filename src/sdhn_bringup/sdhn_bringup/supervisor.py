@@ -24,6 +24,7 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
     env: maif-10          mode: deploy | train       robots: 0 (= the env's team size)
     weights: PATH         (deploy: actor .safetensors, or a run dir holding actor.safetensors)
     seed: 0               episodes: 3 (0 = until stopped)      greedy: true
+    temperature: 1.0      (deploy with greedy false: actions from softmax(logits / T))
     step_deadline: 1.0    max_steps: 0                         instance: -1
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
     restart: {policy: never | on-failure, max_restarts: 3}
@@ -100,6 +101,7 @@ class LaunchConfig:
     seed: int = 0
     episodes: int = 0  # 0 = until stopped
     greedy: bool = True  # deploy: argmax actions; train mode always samples
+    temperature: float = 1.0  # deploy with greedy false: sampling temperature (train mode: 1)
     step_deadline: float = 1.0
     max_steps: int = 0  # 0 = the environment's default
     instance: int = -1
@@ -188,6 +190,13 @@ def validate(cfg: LaunchConfig) -> None:
             obj = getattr(obj, part)
         if obj < 0:
             raise LaunchConfigError(f"{name}: must be >= 0, got {obj}")
+    if not (isinstance(cfg.temperature, (int, float)) and not isinstance(cfg.temperature, bool)
+            and 0.01 <= cfg.temperature <= 100.0):
+        raise LaunchConfigError(f"temperature: got {cfg.temperature!r}; allowed: a number in "
+                                "[0.01, 100] (sampled deployment, greedy: false)")
+    if cfg.temperature != 1.0 and (cfg.mode != "deploy" or cfg.greedy):
+        raise LaunchConfigError("temperature: applies only to deploy mode with greedy: false "
+                                "(train mode samples the policy itself; greedy takes the argmax)")
     for name in ("step_deadline", "start_timeout", "stop_timeout", "status_interval"):
         if not getattr(cfg, name) > 0:
             raise LaunchConfigError(f"{name}: must be > 0 seconds, got {getattr(cfg, name)}")
@@ -312,6 +321,7 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
             "team_ns": ns, "robot_id": i, "num_robots": cfg.robots,
             "weights_file": cfg.weights if cfg.mode == "deploy" else "",
             "greedy": cfg.greedy if cfg.mode == "deploy" else False, "seed": cfg.seed,
+            "temperature": float(cfg.temperature),
             "env": cfg.env, "managed": cfg.managed}
     return nodes
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.actor_runtime import ActorRuntime, check_temperature
 from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
 from sdhn_sim.drops import DropKind
 
@@ -71,8 +71,10 @@ class ActorCore:
 
     def __init__(self, robot_id: int, num_robots: int, greedy: bool, seed: int,
                  runtime: ActorRuntime | None = None, *,
-                 runtime_cls: type[ActorRuntime] = ActorRuntime) -> None:
+                 runtime_cls: type[ActorRuntime] = ActorRuntime,
+                 temperature: float = 1.0) -> None:
         self.robot_id = robot_id
+        self.temperature = check_temperature(temperature)  # sampled play only
         self.runtime_cls = runtime_cls  # builds the runtime of every weights message
         self.num_robots = num_robots
         self.greedy = greedy
@@ -158,7 +160,8 @@ class ActorCore:
             self.hidden = self.runtime.initial_state(1)
             self.episode, self.last_step = episode, None
         action, logp, self.hidden = self.runtime.act(obs[None], self.hidden, self.greedy,
-                                                     self.rng, robot_id=self.robot_id)
+                                                     self.rng, robot_id=self.robot_id,
+                                                     temperature=self.temperature)
         self.last_step = step
         return Decision(int(action[0]), float(logp[0]), self.runtime.version)
 

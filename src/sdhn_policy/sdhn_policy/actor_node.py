@@ -61,7 +61,7 @@ from sdhn_sim.envs.registry import env_names
 from sdhn_sim.poses import FRAME_ID, target_reader, yaw_quaternion
 from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
-from sdhn_sim.ros.params import boolean, declare, integer, string
+from sdhn_sim.ros.params import boolean, declare, floating, integer, string
 from sdhn_sim.ros.qos import LATCHED, POSES, STEP
 from sdhn_sim.ros.runner import ConfigError, run_node
 
@@ -73,6 +73,9 @@ PARAMETERS = {
                                 "exported actor.onnx (backend onnx); '' = wait for the weights "
                                 "topic")),
     "greedy": (False, boolean("argmax actions instead of sampling")),
+    "temperature": (1.0, floating("sampling temperature (greedy false): actions drawn from "
+                                  "softmax(logits / T); T < 1 leans towards the argmax but still "
+                                  "leaves a standstill; 1 = the policy itself", 0.01, 100.0)),
     "seed": (0, integer("seed of the action sampler", 0)),
     "backend": ("numpy", string("policy runtime: 'numpy' or 'onnx' (onnxruntime); same actions")),
     "managed": (False, boolean("wait for lifecycle transitions (configure, activate) through the "
@@ -139,6 +142,7 @@ class ActorNode(LifecycleNode):
         self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
         how = "managed: waiting for configure" if p["managed"] else "configuring itself"
         self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
+                               f"temperature={p['temperature']:g}, "
                                f"backend={p['backend']}, {how}")
 
     # -- lifecycle transitions (lifecycle_msgs/srv/ChangeState, or autostart) -----------------
@@ -148,7 +152,7 @@ class ActorNode(LifecycleNode):
         p, weights_file = self.params, self.params["weights_file"]
         runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
         return ActorCore(self.robot_id, p["num_robots"], p["greedy"], p["seed"], runtime,
-                         runtime_cls=self.runtime_cls)
+                         runtime_cls=self.runtime_cls, temperature=p["temperature"])
 
     def weights_error(self, e: WeightsError) -> str:
         return f"weights_file: {self.params['weights_file']}: {e.reason}; {WEIGHTS_ALLOWED}"

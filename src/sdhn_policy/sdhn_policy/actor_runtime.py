@@ -41,6 +41,32 @@ def log_softmax(logits: F32) -> F32:
     return np.asarray(z - np.log(np.exp(z).sum(axis=-1, keepdims=True)), dtype=np.float32)
 
 
+def check_temperature(temperature: float) -> float:
+    """``temperature`` if it is a usable sampling temperature (finite, > 0); ValueError else."""
+    t = float(temperature)
+    if not np.isfinite(t) or t <= 0.0:
+        raise ValueError(f"temperature must be a finite number > 0, got {temperature!r}")
+    return t
+
+
+def choose_actions(logp: npt.NDArray[np.floating], greedy: bool, rng: np.random.Generator,
+                   temperature: float = 1.0) -> npt.NDArray[np.int64]:
+    """Actions [X] from log-probabilities [X, A]: the argmax (``greedy``), else one draw per row
+    from softmax(logp / temperature) by inverse CDF with one uniform per row, so one seed gives
+    one episode whatever computed ``logp`` (NumPy, ONNX or torch). A temperature below 1 sharpens
+    the policy towards greedy play while keeping some randomness to leave a standstill."""
+    if greedy:
+        return np.asarray(logp.argmax(axis=-1), dtype=np.int64)
+    lp = logp.astype(np.float64)
+    t = check_temperature(temperature)
+    if t != 1.0:  # renormalised in float64; t = 1 keeps the exact draws of earlier releases
+        lp = lp / t
+        lp = lp - lp.max(axis=-1, keepdims=True)
+    cdf = np.cumsum(np.exp(lp), axis=-1)
+    u = rng.random(len(cdf))[:, None] * cdf[:, -1:]
+    return np.asarray(np.minimum((cdf < u).sum(axis=-1), logp.shape[1] - 1), dtype=np.int64)
+
+
 class ActorRuntime:
     """The shared actor's forward pass on NumPy arrays; immutable once built."""
 
@@ -122,15 +148,13 @@ class ActorRuntime:
         greedy: bool,
         rng: np.random.Generator,
         robot_id: int | npt.ArrayLike | None = None,
+        *,
+        temperature: float = 1.0,
     ) -> tuple[npt.NDArray[np.int64], F32, F32]:
-        """Pick actions: returns (action [X], log-prob of it [X], next hidden [X, H])."""
+        """Pick actions: returns (action [X], log-prob of it under the policy [X], next hidden
+        [X, H]). Sampled play draws from softmax(logits / ``temperature``); the log-prob
+        returned is always the policy's own (temperature 1), the one PPO trains on."""
         logits, h_next = self.step(obs, hidden, robot_id)
         logp = log_softmax(logits)
-        if greedy:
-            action = logp.argmax(axis=-1)
-        else:  # inverse-CDF sampling, one uniform per robot
-            cdf = np.cumsum(np.exp(logp.astype(np.float64)), axis=-1)
-            u = rng.random(len(cdf))[:, None] * cdf[:, -1:]
-            action = np.minimum((cdf < u).sum(axis=-1), logits.shape[1] - 1)
-        action = action.astype(np.int64)
+        action = choose_actions(logp, greedy, rng, temperature)
         return action, logp[np.arange(len(action)), action], h_next

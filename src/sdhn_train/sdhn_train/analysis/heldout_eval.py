@@ -34,7 +34,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import stats
 
-from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.actor_runtime import ActorRuntime, check_temperature, choose_actions
 from sdhn_policy.weights import ActorSpec, atomic_write_bytes
 from sdhn_sim.envs.maif import MaifEnv
 from sdhn_sim.envs.maif_instances import MaifInstances
@@ -54,7 +54,7 @@ class Policy(Protocol):
     def initial_state(self, n: int) -> npt.NDArray[np.float32]: ...
 
     def act(self, obs: npt.ArrayLike, hidden: npt.ArrayLike, greedy: bool,
-            rng: np.random.Generator, robot_id: Any = None
+            rng: np.random.Generator, robot_id: Any = None, *, temperature: float = 1.0
             ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         ...
 
@@ -89,10 +89,12 @@ def set_checksum(inst: MaifInstances) -> str:
 
 def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False, seed: int = 0,
                  wedge_steps: int = WEDGE_STEPS, reward: str = "corrected",
-                 unstick: int = 0) -> list[InstanceResult]:
-    """One episode per instance of set ``which`` of ``task``, all in one batch. ``unstick`` > 0
-    (with greedy play): a robot off its goal that has not moved for ``unstick`` steps samples
-    its action from the policy instead of taking the argmax, until it moves."""
+                 unstick: int = 0, temperature: float = 1.0) -> list[InstanceResult]:
+    """One episode per instance of set ``which`` of ``task``, all in one batch. ``sample``:
+    actions drawn from softmax(logits / ``temperature``). ``unstick`` > 0 (with greedy play): a
+    robot off its goal that has not moved for ``unstick`` steps samples its action from the
+    policy (at ``temperature``) instead of taking the argmax, until it moves."""
+    check_temperature(temperature)
     inst = set_instances(task, which)
     b = inst.num_instances
     env = MaifEnv(inst, num_envs=b, seed=seed, name=task, instance_order="round_robin",
@@ -107,11 +109,13 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
     while len(out) < b:
         before, goals = env.positions, env.goals
         flat = obs.reshape(b * n, -1)
-        act, _, h_next = policy.act(flat, h, greedy=not sample, rng=rng, robot_id=ids)
+        act, _, h_next = policy.act(flat, h, greedy=not sample, rng=rng, robot_id=ids,
+                                    temperature=temperature)
         if unstick > 0 and not sample:
             stuck = (still >= unstick) & np.any(before != goals, axis=2)
             if stuck.any():  # same hidden state in, so the same next hidden state out
-                drawn, _, _ = policy.act(flat, h, greedy=False, rng=rng, robot_id=ids)
+                drawn, _, _ = policy.act(flat, h, greedy=False, rng=rng, robot_id=ids,
+                                         temperature=temperature)
                 act = np.where(stuck.reshape(-1), drawn, act)
         h = h_next
         res = env.step(act.reshape(b, n))
@@ -255,7 +259,7 @@ class TorchPolicy:
         return np.zeros((n, self.spec.gru_hidden), dtype=np.float32)
 
     def act(self, obs: npt.ArrayLike, hidden: npt.ArrayLike, greedy: bool,
-            rng: np.random.Generator, robot_id: Any = None
+            rng: np.random.Generator, robot_id: Any = None, *, temperature: float = 1.0
             ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         torch = self._torch
         x = self._numpy._input(obs, robot_id)
@@ -263,13 +267,7 @@ class TorchPolicy:
             logits, h = self.actor.step(torch.from_numpy(x),
                                         torch.from_numpy(np.asarray(hidden, dtype=np.float32)))
             logp = torch.log_softmax(logits, dim=-1).numpy()
-        if greedy:
-            action = logp.argmax(axis=-1)
-        else:  # the runtime's inverse-CDF sampling, so one seed gives one episode in both
-            cdf = np.cumsum(np.exp(logp.astype(np.float64)), axis=-1)
-            u = rng.random(len(cdf))[:, None] * cdf[:, -1:]
-            action = np.minimum((cdf < u).sum(axis=-1), logp.shape[1] - 1)
-        action = action.astype(np.int64)
+        action = choose_actions(logp, greedy, rng, temperature)
         return action, logp[np.arange(len(action)), action], h.numpy()
 
 

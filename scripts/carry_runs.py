@@ -1,0 +1,15 @@
+#!/usr/bin/env python3
+"""Carry a suite's log directory across machines inside the repository (long suites outlive a
+machine); logic in sdhn_train.analysis.carry.
+
+    scripts/carry_runs.py save /work/runs/rware carry/rware-long       # before the machine goes
+    scripts/carry_runs.py restore carry/rware-long /work/runs/rware    # on the next one, then
+    scripts/run_experiments.py configs/suites/rware.yaml --budget long --logdir /work/runs/rware
+"""
+
+import sys
+
+from sdhn_train.analysis.carry import main
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,190 @@
+"""Carry a suite's log directory from one machine to the next inside the repository.
+
+Long suites (RWARE at 20 M steps, ten seeds per method) outlive the machine they run on: the
+machines here are handed out for a few hours and keep nothing. ``save`` copies, for every run of
+a log directory, what the runner needs to skip it (finished) or resume it (unfinished) into a
+directory of the repository; ``restore`` puts it back under a log directory on the next machine,
+where rerunning the suite's command carries on (``docs/experiments.md``).
+
+What is carried, per run directory (``LOGDIR/<task>__<method>__s<seed>/``):
+
+- its top-level files except TensorBoard event files (the curves are in ``metrics.csv``): the
+  spec ``run.json``, the configs, ``metrics.csv``, ``train.log``, ``summary.json``,
+  ``DONE.json``, the exported actor and the cached held-out evaluation, when present;
+- an unfinished run's newest checkpoint (``checkpoints/step_<n>.json`` + ``.safetensors``);
+- P_H snapshots (``hypergraph/``) of finished runs, which the figures read.
+
+A file over ``MAX_FILE_BYTES`` is left out and named. ``restore`` never replaces newer
+progress: a run is copied back only if the log directory lacks it, or holds it at an earlier
+checkpoint, or unfinished where the carried copy is finished.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from sdhn_train.analysis.experiments import DONE, SPEC, ExperimentError, check_name
+from sdhn_train.checkpoint import latest_checkpoint
+
+MAX_FILE_BYTES = 20 * 1024 * 1024
+"""Above this a file is not carried (a checkpoint of the networks here is ~2 MB)."""
+SKIP_PREFIXES = ("events.out.tfevents", ".")
+SNAPSHOT_DIR = "hypergraph"
+MANIFEST = "CARRY.json"
+
+
+class CarryError(Exception):
+    """A refused save or restore, in one line."""
+
+
+@dataclass(frozen=True)
+class RunProgress:
+    """How far one run directory is: finished, else its newest checkpoint's step (-1: none)."""
+
+    done: bool
+    step: int
+
+    def key(self) -> tuple[int, int]:
+        return (int(self.done), self.step)
+
+    def describe(self) -> str:
+        return "finished" if self.done else (f"step {self.step:,}" if self.step >= 0
+                                             else "no checkpoint")
+
+
+def progress(run: Path) -> RunProgress:
+    ckpt = latest_checkpoint(run)
+    digits = ckpt.name.rpartition("_")[2] if ckpt is not None else ""
+    step = int(digits) if digits.isdigit() else -1
+    return RunProgress(done=(run / DONE).is_file(), step=step)
+
+
+def run_dirs(logdir: Path) -> list[Path]:
+    """The run directories of a log directory (those with a runner's spec), sorted."""
+    if not logdir.is_dir():
+        raise CarryError(f"{logdir}: no such directory")
+    return sorted(d for d in logdir.iterdir() if d.is_dir() and (d / SPEC).is_file())
+
+
+def _carried_files(run: Path, done: bool) -> tuple[list[Path], list[str]]:
+    """(files to carry, relative to ``run``; files left out, with why)."""
+    files: list[Path] = []
+    left: list[str] = []
+    for f in sorted(run.iterdir()):
+        if f.is_file() and not f.is_symlink() and not f.name.startswith(SKIP_PREFIXES):
+            files.append(f.relative_to(run))
+    if done:
+        snaps = run / SNAPSHOT_DIR
+        if snaps.is_dir():
+            files += sorted(f.relative_to(run) for f in snaps.glob("ph_*.npz") if f.is_file())
+    else:
+        ckpt = latest_checkpoint(run)
+        if ckpt is not None:
+            files += [ckpt.with_suffix(".json").relative_to(run),
+                      ckpt.with_suffix(".safetensors").relative_to(run)]
+    kept = []
+    for rel in files:
+        size = (run / rel).stat().st_size
+        if size > MAX_FILE_BYTES:
+            left.append(f"{run.name}/{rel} ({size:,} bytes > {MAX_FILE_BYTES:,})")
+        else:
+            kept.append(rel)
+    return kept, left
+
+
+def _copy_run(src: Path, dst: Path, files: list[Path]) -> None:
+    """Copy ``files`` of run ``src`` into a fresh ``dst`` (built beside it, then renamed, so a
+    crash leaves the old copy or the new one, never half of each)."""
+    tmp = dst.with_name(dst.name + ".carry-tmp")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    for rel in files:
+        (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(src / rel, tmp / rel)
+    if dst.exists():
+        old = dst.with_name(dst.name + ".carry-old")
+        if old.exists():
+            shutil.rmtree(old)
+        dst.rename(old)
+        tmp.rename(dst)
+        shutil.rmtree(old)
+    else:
+        tmp.rename(dst)
+
+
+def save(logdir: Path, dest: Path) -> list[str]:
+    """Carry every run of ``logdir`` into ``dest`` (replacing what ``dest`` held for those runs;
+    runs only in ``dest`` stay). Returns one line per run and per file left out."""
+    lines = []
+    dest.mkdir(parents=True, exist_ok=True)
+    manifest: dict[str, str] = {}
+    for run in run_dirs(logdir):
+        check_name(run.name, f"{run}")  # a path component we may write
+        prog = progress(run)
+        files, left = _carried_files(run, prog.done)
+        _copy_run(run, dest / run.name, files)
+        size = sum((run / f).stat().st_size for f in files)
+        manifest[run.name] = prog.describe()
+        lines.append(f"{run.name}: {prog.describe()}, {len(files)} files, {size / 1e6:.1f} MB")
+        lines += [f"  left out: {x}" for x in left]
+    old = {}
+    if (dest / MANIFEST).is_file():
+        try:
+            old = json.loads((dest / MANIFEST).read_text())["runs"]
+        except (ValueError, KeyError, TypeError):
+            old = {}
+    runs = {**old, **manifest}
+    (dest / MANIFEST).write_text(json.dumps({"source": logdir.name, "runs": runs}, indent=1,
+                                            sort_keys=True) + "\n")
+    return lines
+
+
+def restore(src: Path, logdir: Path) -> list[str]:
+    """Copy the carried runs of ``src`` into ``logdir`` where they are further along than what
+    ``logdir`` holds. Returns one line per run."""
+    lines = []
+    logdir.mkdir(parents=True, exist_ok=True)
+    for run in run_dirs(src):
+        check_name(run.name, f"{run}")  # carried from elsewhere: stays inside logdir
+        target = logdir / run.name
+        carried = progress(run)
+        if target.exists():
+            here = progress(target)
+            if here.key() >= carried.key():
+                lines.append(f"{run.name}: kept the log directory's ({here.describe()}; carried: "
+                             f"{carried.describe()})")
+                continue
+        files = [f.relative_to(run) for f in sorted(run.rglob("*")) if f.is_file()]
+        _copy_run(run, target, files)
+        lines.append(f"{run.name}: restored ({carried.describe()})")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="carry_runs", description=__doc__.split("\n\n")[0] if __doc__ else None)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("save", help="copy a log directory's runs into the repository")
+    s.add_argument("logdir", type=Path)
+    s.add_argument("dest", type=Path, help="e.g. carry/<suite>-<budget>")
+    r = sub.add_parser("restore", help="put carried runs back under a log directory")
+    r.add_argument("src", type=Path, help="a directory written by save")
+    r.add_argument("logdir", type=Path)
+    args = p.parse_args(argv)
+    try:
+        lines = (save(args.logdir, args.dest) if args.cmd == "save"
+                 else restore(args.src, args.logdir))
+    except (CarryError, ExperimentError, OSError) as e:
+        print(f"carry_runs: {e}", file=sys.stderr)
+        return 2
+    print("\n".join(lines) if lines else "carry_runs: no runs")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

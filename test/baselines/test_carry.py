@@ -1,0 +1,85 @@
+"""Carrying a suite's log directory to another machine (analysis/carry.py): a finished run is
+skipped there, an unfinished one resumes from its carried checkpoint in a log directory at
+another path and ends with the same results as an uninterrupted run, and a restore never
+replaces newer progress."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+from sdhn_train.analysis.carry import MANIFEST, main, progress, restore, save
+from sdhn_train.analysis.experiments import DONE, load_suite, run_suite
+from sdhn_train.checkpoint import checkpoints
+
+SUITE = """
+name: carry
+methods:
+  sdhn: {algo: sdhn}
+  mappo: {algo: mappo}
+tasks:
+  maif-tiny: {env.max_steps: 40}
+seeds: [1]
+budgets:
+  quick:
+    set:
+      train.total_steps: 768
+      env.num_envs: 4
+      ppo.rollout_len: 32
+      ppo.num_minibatches: 2
+      eval.interval: 256
+      eval.episodes: 2
+      log.checkpoint_interval: 256
+"""
+
+
+def _results(run_dir: Path) -> list[tuple[str, str, str]]:
+    with open(run_dir / "metrics.csv", newline="") as f:
+        return [(r["step"], r["tag"], r["value"]) for r in csv.DictReader(f)
+                if not r["tag"].startswith(("perf/", "charts/steps_per_second"))]
+
+
+def test_carry_skips_finished_and_resumes_unfinished_elsewhere(tmp_path: Path) -> None:
+    suite = tmp_path / "carry.yaml"
+    suite.write_text(SUITE)
+    runs = load_suite(suite, "quick")
+    first, second = (r.name for r in runs)
+    machine_a = tmp_path / "a" / "logs"
+    assert run_suite(runs, machine_a, jobs=1, out=io.StringIO())["done"] == 2
+    reference = _results(machine_a / second)
+
+    # The second run as if the machine went away midway: no marker, an earlier checkpoint.
+    (machine_a / second / DONE).unlink()
+    ckpts = checkpoints(machine_a / second)
+    assert len(ckpts) >= 2, "the budget should leave more than one checkpoint"
+    for stem in ckpts[1:]:
+        stem.with_suffix(".json").unlink()
+        stem.with_suffix(".safetensors").unlink()
+    step = progress(machine_a / second).step
+    assert 0 < step < 768
+
+    carried = tmp_path / "repo" / "carry" / "carry-quick"
+    lines = save(machine_a, carried)
+    assert any(second in x and f"step {step:,}" in x for x in lines), lines
+    assert not list(carried.rglob("events.out.tfevents*"))
+    assert not (carried / first / "checkpoints").exists()  # a finished run needs none
+    assert sorted(p.name for p in (carried / second / "checkpoints").iterdir()) == [
+        f"{ckpts[0].name}.json", f"{ckpts[0].name}.safetensors"]  # the newest one only
+    assert (carried / MANIFEST).is_file()
+
+    machine_b = tmp_path / "b" / "elsewhere"  # another path: the saved log root differs
+    assert main(["restore", str(carried), str(machine_b)]) == 0
+    out = io.StringIO()
+    counts = run_suite(runs, machine_b, jobs=1, out=out)
+    assert counts == {"done": 1, "skipped": 1, "failed": 0}, out.getvalue()
+    assert _results(machine_b / second) == reference
+
+    # Restoring the older carried copy again keeps the finished run.
+    again = restore(carried, machine_b)
+    assert all("kept" in x for x in again), again
+    assert (machine_b / second / DONE).is_file()
+
+
+def test_carry_refuses_a_missing_log_directory(tmp_path: Path) -> None:
+    assert main(["save", str(tmp_path / "nope"), str(tmp_path / "dest")]) == 2

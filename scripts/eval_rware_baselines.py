@@ -22,40 +22,15 @@ import sys
 import time
 import warnings
 
-import numpy as np
-
-from sdhn_sim.envs import make_env
-from sdhn_sim.envs.api import reward_name
-from sdhn_sim.envs.rware_batched import RwareBatchedEnv
-from sdhn_sim.envs.rware_decentralised import DecentralisedPolicy
-from sdhn_sim.envs.rware_scripted import ObsPolicy, RandomPolicy, ScriptedPolicy, run_episodes
-
-POLICIES = ("random", "scripted", "decentralised")
+from sdhn_sim.envs.rware_baselines import POLICIES, evaluate_baseline
 
 
 def evaluate(name: str, policy: str, *, episodes: int, seed: int) -> dict[str, object]:
-    if policy not in POLICIES:
-        raise ValueError(f"--policies: {policy!r}; allowed: {', '.join(POLICIES)}")
-    backend = "rware" if policy == "scripted" else "batched"
-    env = make_env(name, num_envs=episodes, seed=seed, backend=backend)
-    actor: ScriptedPolicy | ObsPolicy
-    if policy == "scripted":
-        actor = ScriptedPolicy(seed)
-    elif policy == "decentralised":
-        assert isinstance(env, RwareBatchedEnv)
-        actor = DecentralisedPolicy(env.layout, env.num_robots, seed)
-    else:
-        actor = RandomPolicy(seed)
+    """``evaluate_baseline`` with its wall time."""
     t0 = time.perf_counter()
-    eps = run_episodes(env, actor, seed=seed)
-    wall = time.perf_counter() - t0
-    deliveries = np.array([e.deliveries for e in eps], dtype=float)
-    returns = np.array([e.episode_return for e in eps])
-    return {"env": name, "policy": policy, "episodes": len(eps),
-            "seeds": f"{seed}..{seed + episodes - 1}",
-            "deliveries_mean": float(deliveries.mean()), "deliveries_std": float(deliveries.std()),
-            "return_mean": float(returns.mean()), "return_std": float(returns.std()),
-            "reward": f"{reward_name(env)} (rware's individual reward)", "wall_s": round(wall, 1)}
+    r = evaluate_baseline(name, policy, episodes=episodes, seed=seed)
+    r.pop("deliveries")
+    return {**r, "wall_s": round(time.perf_counter() - t0, 1)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -44,11 +44,32 @@ def make_run(root: Path, task: str = "maif-solo") -> Path:
     return run
 
 
-def test_rware_run_is_refused(tmp_path: Path) -> None:
-    run = make_run(tmp_path, "rware-3")
-    r = ship(tmp_path, run, tmp_path / "model", "--instances", "1")
-    assert r.returncode == 2 and "MAIF" in one_line(r.stderr)
-    assert not (tmp_path / "model").exists()
+def test_rware_run_ships_with_deliveries_beside_the_baselines(tmp_path: Path) -> None:
+    """An RWARE run ships too: its card gives greedy deliveries per episode on seeds no training
+    draws, beside random and both scripted policies on the same seeds."""
+    import json
+
+    from sdhn_policy.actor_torch import Actor
+    from sdhn_policy.weights import ActorSpec, save_actor_file
+    from sdhn_sim.envs import make_env
+
+    run = make_run(tmp_path, "rware-tiny-2ag")
+    env = make_env("rware-tiny-2ag", num_envs=1, seed=0)
+    save_actor_file(run / "actor.safetensors", Actor(ActorSpec(
+        obs_size=env.obs_size, num_actions=env.num_actions, num_robots=env.num_robots,
+        use_robot_id=True)).export(version=3))
+    r = ship(tmp_path, run, tmp_path / "model", "--episodes", "2")
+    assert r.returncode == 0, r.stderr
+    card = json.loads((tmp_path / "model" / "card.json").read_text())
+    ev = card["evaluation"]
+    assert ev["episodes"] == 2 and ev["first_seed"] == 1_000_000
+    assert len(ev["policy"]["deliveries"]) == 2
+    assert set(ev) >= {"random", "scripted", "decentralised"}
+    assert ev["decentralised"]["deliveries_mean"] > 0  # the scripted policies do deliver
+    md = (tmp_path / "model" / "card.md").read_text()
+    assert "deliveries per episode" in md and "scripted (centralised)" in md
+    contract = json.loads((tmp_path / "model" / "actor.onnx.json").read_text())
+    assert contract["actions"][4] == "toggle_load"
 
 
 def test_actor_of_another_env_is_refused(tmp_path: Path) -> None:

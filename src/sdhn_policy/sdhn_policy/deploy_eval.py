@@ -1,8 +1,12 @@
-"""Greedy evaluation of an exported MAIF actor as it deploys: the torch-free NumPy runtime, one
-episode per instance of the training and the held-out instance sets, success and makespan first.
+"""Greedy evaluation of an exported actor as it deploys (the torch-free NumPy runtime).
+
+MAIF: one episode per instance of the training and the held-out instance sets, success and
+makespan first. RWARE: one 500-step episode per evaluation seed, requested shelves delivered.
 
     results = evaluate_actor(path, "maif-tiny", reward="corrected", instances=100)
     results["train"]["success_rate"], results["heldout"]["makespan"]   # makespan: "NC" if none
+    rt = ActorRuntime.from_file(path)
+    rware_deliveries(rt, "rware-tiny-2ag", episodes=100, seed=RWARE_EVAL_SEED)["deliveries_mean"]
 
 Used by ``scripts/ship_model.py`` (model cards) and ``scripts/compare_ros_training.py``.
 """
@@ -16,10 +20,13 @@ import numpy as np
 
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_sim.envs import make_env
-from sdhn_sim.envs.api import EpisodeStats
+from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
 from sdhn_sim.envs.maif import MaifEnv
 
 SETS = ("train", "heldout")
+RWARE_EVAL_SEED = 1_000_000
+"""First seed of a shipped RWARE card's evaluation episodes: far from the seeds training and its
+periodic evaluations draw (train.seed and a few above), so they are episodes never trained on."""
 
 
 def instance_env(env_name: str, which: str, instances: int, seed: int, reward: str) -> MaifEnv:
@@ -31,8 +38,9 @@ def instance_env(env_name: str, which: str, instances: int, seed: int, reward: s
     return env
 
 
-def run_actor(rt: ActorRuntime, env: MaifEnv, seed: int) -> list[EpisodeStats]:
-    """One greedy episode per env of the batch (env b plays instance b), NumPy runtime only."""
+def run_actor(rt: ActorRuntime, env: BatchedEnv, seed: int) -> list[EpisodeStats]:
+    """One greedy episode per env of the batch (MAIF: env b plays instance b; RWARE: env b
+    starts from seed ``seed + b``), NumPy runtime only."""
     b, n = env.num_envs, env.num_robots
     obs, _ = env.reset(seed=seed)
     h = rt.initial_state(b * n)
@@ -66,3 +74,19 @@ def evaluate_actor(actor: str | os.PathLike[str], env_name: str, reward: str,
     return {which: summarise(run_actor(rt, instance_env(env_name, which, instances, seed,
                                                         reward), seed))
             for which in SETS}
+
+
+def rware_deliveries(rt: ActorRuntime, env_name: str, episodes: int, seed: int
+                     ) -> dict[str, Any]:
+    """Greedy deliveries per RWARE episode (mean, population std, each episode's) and return, one
+    episode from each seed ``seed .. seed + episodes - 1``."""
+    env = make_env(env_name, num_envs=episodes, seed=seed)
+    if isinstance(env, MaifEnv):
+        raise ValueError(f"env: {env_name!r} is a MAIF env; allowed: an RWARE env")
+    eps = run_actor(rt, env, seed)
+    d = np.array([e.deliveries or 0 for e in eps], dtype=float)
+    return {"episodes": len(eps), "seeds": f"{seed}..{seed + episodes - 1}",
+            "deliveries_mean": round(float(d.mean()), 3),
+            "deliveries_std": round(float(d.std()), 3),
+            "deliveries": [int(x) for x in d],
+            "return": round(float(np.mean([e.episode_return for e in eps])), 3)}

@@ -53,3 +53,42 @@ def test_ros_deploy_actions_equal_inprocess_greedy_rollout(weights: Path, backen
         assert len(got) == len(expected[e]) == seen.episodes[e].length
         for t, (a, b) in enumerate(zip(got, expected[e], strict=True)):
             assert a == b, f"episode {e} step {t}: ROS actions {a}, in-process {b}"
+
+
+def test_rware_ros_deploy_equals_inprocess_greedy_rollout(tmp_path: Path) -> None:
+    """RWARE over ROS (the simulator node on rware-tiny-2ag, one actor process per robot) applies
+    the in-process greedy rollout's actions step for step, so it delivers what it delivers in
+    process on the same seed."""
+    import torch
+
+    from sdhn_policy.actor_torch import Actor
+    from sdhn_policy.weights import ActorSpec, save_actor_file
+    from sdhn_sim.envs import make_single_env
+
+    env = make_single_env("rware-tiny-2ag", seed=SEED)
+    n = env.num_robots
+    torch.manual_seed(0)
+    actor = Actor(ActorSpec(obs_size=env.obs_size, num_actions=env.num_actions, num_robots=n,
+                            use_robot_id=True))
+    with torch.no_grad():  # larger weights than the init: actions that change with the input
+        for t in actor.parameters():
+            t.mul_(4.0)
+    weights = tmp_path / "actor.safetensors"
+    save_actor_file(weights, actor.export(version=2))
+    steps = 60
+    expected = inprocess_greedy_actions(weights, "rware-tiny-2ag", SEED, 1, steps)
+    assert len({a for step in expected[0] for a in step}) > 1, "a policy that never changes"
+    ns = "/sdhn_equal_rware"
+    actors = [actor_cmd(i, n, ns, weights_file=weights, greedy=True) for i in range(n)]
+    with observer(n, ns) as (node, seen, spin), node_processes(*actors) as procs:
+        actions = [topics.absolute(ns, topics.robot_action(i)) for i in range(n)]
+        assert spin(30, lambda: all(node.count_publishers(t) >= 1 for t in actions)), [
+            p.output for p in procs]
+        with node_processes(sim_cmd("rware-tiny-2ag", ns=ns, seed=SEED, episodes=1,
+                                    max_steps=steps, extra_subscribers=1)) as (sim,):
+            assert spin(60, lambda: len(seen.episodes) == 1), sim.output
+            sim.proc.wait(timeout=10)
+        stop_all(procs)
+    assert seen.episodes[0].missed_actions == 0, sim.output
+    got = action_table(seen, 0, n)
+    assert got == expected[0]

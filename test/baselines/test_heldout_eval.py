@@ -39,7 +39,8 @@ class StayPolicy:
         return np.zeros((n, 1), dtype=np.float32)
 
     def act(self, obs: Any, hidden: Any, greedy: bool, rng: np.random.Generator,
-            robot_id: Any = None) -> tuple[Any, Any, Any]:
+            robot_id: Any = None, *, temperature: float = 1.0
+            ) -> tuple[Any, Any, Any]:
         x = np.asarray(obs)
         return (np.zeros(len(x), dtype=np.int64), np.zeros(len(x), dtype=np.float32),
                 np.asarray(hidden))
@@ -118,6 +119,11 @@ def test_evaluate_policy_script(tmp_path: Path) -> None:
     bad = subprocess.run([*cmd[:3], "--sets", "procedural"], capture_output=True, text=True,
                          timeout=600, check=False)
     assert bad.returncode == 2 and "--sets" in bad.stderr
+    for extra, why in [(["--temperature", "0.5"], "add --sample"),
+                       (["--sample", "--temperature", "0"], "--temperature must be")]:
+        bad = subprocess.run([*cmd, *extra], capture_output=True, text=True, timeout=600,
+                             check=False)
+        assert bad.returncode == 2 and why in bad.stderr, bad.stderr
 
 
 class CountingStayPolicy(StayPolicy):
@@ -126,7 +132,8 @@ class CountingStayPolicy(StayPolicy):
     sampled = 0
 
     def act(self, obs: Any, hidden: Any, greedy: bool, rng: np.random.Generator,
-            robot_id: Any = None) -> tuple[Any, Any, Any]:
+            robot_id: Any = None, *, temperature: float = 1.0
+            ) -> tuple[Any, Any, Any]:
         a, lp, h = super().act(obs, hidden, greedy, rng, robot_id)
         if not greedy:
             self.sampled += 1
@@ -144,3 +151,20 @@ def test_unstick_samples_only_for_robots_that_stopped() -> None:
     # stuck from step 5 on, unstuck by moving down, stuck again 5 steps later (or for good
     # against the bottom wall): sampled calls come every few steps, not every step
     assert 0 < unstick.sampled < 500
+
+
+def test_paired_makespan_counts_only_instances_every_mode_completed() -> None:
+    from sdhn_train.analysis.heldout_eval import paired_makespan_ratios
+
+    def run(makespans: list[int | None]) -> dict[str, object]:
+        return {"task": "maif-10", "set": "heldout_large", "set_checksum": "x",
+                "planner_makespan": [10, 20, 10, 10],
+                "records": [{"makespan": m} for m in makespans]}
+
+    greedy = run([12, None, 11, 15])  # fails instance 1 (the planner's hard one)
+    sampled = run([13, 40, 12, None])  # completes it slowly, fails instance 3
+    n, (g, s) = paired_makespan_ratios([greedy, sampled])
+    assert n == 2  # instances 0 and 2
+    assert g == pytest.approx((1.2 + 1.1) / 2) and s == pytest.approx((1.3 + 1.2) / 2)
+    with pytest.raises(ValueError, match="different tasks"):
+        paired_makespan_ratios([greedy, {**sampled, "task": "maif-16"}])

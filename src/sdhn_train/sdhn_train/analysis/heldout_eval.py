@@ -226,6 +226,26 @@ def summarise(recs: list[InstanceResult], planner: list[int | None] | None,
     return out
 
 
+def paired_makespan_ratios(runs: list[dict[str, Any]]) -> tuple[int, list[float | None]]:
+    """Makespan over the planner's, mean per run, over only the instances that *every* run
+    completed (runs: ``evaluate_policy`` results of one task and set, with records and the
+    planner's makespans). A mode that completes more, and so harder, instances is not charged
+    for them, as the per-run mean over its own completions would. Returns (instances, means)."""
+    if not runs:
+        return 0, []
+    keys = {(r["task"], r["set"], r.get("set_checksum")) for r in runs}
+    if len(keys) != 1:
+        raise ValueError(f"runs of different tasks or sets: {sorted(map(str, keys))}")
+    plan = runs[0].get("planner_makespan")
+    if plan is None:
+        raise ValueError("no planner makespans (evaluated with --no-planner?)")
+    both = [i for i, p in enumerate(plan)
+            if p and all(r["records"][i]["makespan"] is not None for r in runs)]
+    means: list[float | None] = [
+        _mean([r["records"][i]["makespan"] / plan[i] for i in both]) for r in runs]
+    return len(both), means
+
+
 def _mean(xs: list[int] | list[float]) -> float | None:
     return float(np.mean(xs)) if xs else None
 

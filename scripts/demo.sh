@@ -21,7 +21,7 @@ mkdir -p "$RUN_DIR"
 export ROS_LOG_DIR="$RUN_DIR/ros_logs" ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $$ % 100 + 1 ))}"
 
-echo "[demo] 1/3 deploying the shipped policy $MODEL on maif-10 (greedy):" \
+echo "[demo] 1/3 deploying the shipped policy $MODEL on maif-10 (sampled at temperature 0.5):" \
      "simulator + 10 actor processes + recorder, $EPISODES episodes"
 sed -n '/^| who/,/^| lower/p' "$MODEL/card.md"
 scripts/launch.sh configs/launch/deploy-maif10.yaml --set weights="$MODEL" \

@@ -5,13 +5,14 @@ replaces newer progress."""
 
 from __future__ import annotations
 
-import csv
 import io
 from pathlib import Path
 
 from sdhn_train.analysis.carry import MANIFEST, main, progress, restore, save
 from sdhn_train.analysis.experiments import DONE, load_suite, run_suite
 from sdhn_train.checkpoint import checkpoints
+
+from .test_experiments import _results  # metrics rows without the wall-clock ones
 
 SUITE = """
 name: carry
@@ -32,12 +33,6 @@ budgets:
       eval.episodes: 2
       log.checkpoint_interval: 256
 """
-
-
-def _results(run_dir: Path) -> list[tuple[str, str, str]]:
-    with open(run_dir / "metrics.csv", newline="") as f:
-        return [(r["step"], r["tag"], r["value"]) for r in csv.DictReader(f)
-                if not r["tag"].startswith(("perf/", "charts/steps_per_second"))]
 
 
 def test_carry_skips_finished_and_resumes_unfinished_elsewhere(tmp_path: Path) -> None:

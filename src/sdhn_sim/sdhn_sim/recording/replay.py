@@ -325,12 +325,14 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
         return 2
     span = (team[-1][0].log_time_ns - team[0][0].log_time_ns) / 1e9 if team else 0.0
     states = sum(1 for _, k in team if k == "state")
-    print(f"replay: serving {rec.path} on {ws_url(host, server.port)} ({states} states, "
-          f"{span:.1f} s recorded, rate {rate}x); playback starts when a client subscribes, "
-          "Ctrl-C stops", flush=True)
     sent = 0
+    # The handler before the serving line: whoever reads that line may send SIGTERM at once
+    # (the default action would kill the process without its closing line).
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
+        print(f"replay: serving {rec.path} on {ws_url(host, server.port)} ({states} states, "
+              f"{span:.1f} s recorded, rate {rate}x); playback starts when a client subscribes, "
+              "Ctrl-C stops", flush=True)
         while not server.new_subscriber.wait(0.1):
             pass
         while True:

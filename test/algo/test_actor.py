@@ -29,6 +29,9 @@ SPECS = [
     ActorSpec(obs_size=57, num_actions=5),
     ActorSpec(obs_size=9, num_actions=4, hidden_sizes=(32, 16), gru_hidden=24, use_robot_id=True,
               num_robots=3),
+    # feed-forward (EPyMARL's use_rnn: false): no GRU, hidden states of width 0
+    ActorSpec(obs_size=71, num_actions=5, hidden_sizes=(128,), gru_hidden=0, use_robot_id=True,
+              num_robots=3),
 ]
 
 
@@ -40,7 +43,7 @@ def _perturbed(spec: ActorSpec) -> Actor:
     return actor
 
 
-@pytest.mark.parametrize("spec", SPECS, ids=["plain", "robot_id"])
+@pytest.mark.parametrize("spec", SPECS, ids=["plain", "robot_id", "feed_forward"])
 def test_numpy_runtime_equals_torch_over_random_sequences(spec: ActorSpec) -> None:
     actor = _perturbed(spec)
     rt = ActorRuntime.from_weights(actor.export(version=7))

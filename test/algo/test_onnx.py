@@ -30,6 +30,8 @@ def _random_weights(spec: ActorSpec, seed: int = 0) -> dict[str, np.ndarray]:
     shapes = {"gru.weight_ih": (3 * h, sizes[-1]), "gru.weight_hh": (3 * h, h),
               "gru.bias_ih": (3 * h,), "gru.bias_hh": (3 * h,),
               "head.weight": (spec.num_actions, h), "head.bias": (spec.num_actions,)}
+    if h == 0:  # feed-forward: no GRU, the head reads the last encoder layer
+        shapes = {"head.weight": (spec.num_actions, sizes[-1]), "head.bias": (spec.num_actions,)}
     for k in range(len(spec.hidden_sizes)):
         shapes[f"encoder.{k}.weight"] = (sizes[k + 1], sizes[k])
         shapes[f"encoder.{k}.bias"] = (sizes[k + 1],)
@@ -65,6 +67,8 @@ SPECS = {
     "robot-id": ActorSpec(obs_size=57, num_actions=5, hidden_sizes=(32, 16), gru_hidden=24,
                           use_robot_id=True, num_robots=4, features="maif-ego/1"),
     "identity": ActorSpec(obs_size=71, num_actions=5, hidden_sizes=(64,), gru_hidden=64),
+    "feed-forward": ActorSpec(obs_size=71, num_actions=5, hidden_sizes=(128,), gru_hidden=0,
+                              use_robot_id=True, num_robots=2),
 }
 
 

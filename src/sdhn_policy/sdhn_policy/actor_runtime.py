@@ -78,10 +78,12 @@ class ActorRuntime:
             (tensors[f"encoder.{k}.weight"].T.copy(), tensors[f"encoder.{k}.bias"])
             for k in range(len(spec.hidden_sizes))
         ]
-        self._w_ih = tensors["gru.weight_ih"].T.copy()  # [in, 3H], gate order r, z, n
-        self._w_hh = tensors["gru.weight_hh"].T.copy()  # [H, 3H]
-        self._b_ih = tensors["gru.bias_ih"]
-        self._b_hh = tensors["gru.bias_hh"]
+        self._recurrent = spec.gru_hidden > 0  # else feed-forward: hidden [X, 0] passes through
+        if self._recurrent:
+            self._w_ih = tensors["gru.weight_ih"].T.copy()  # [in, 3H], gate order r, z, n
+            self._w_hh = tensors["gru.weight_hh"].T.copy()  # [H, 3H]
+            self._b_ih = tensors["gru.bias_ih"]
+            self._b_hh = tensors["gru.bias_hh"]
         self._w_out = tensors["head.weight"].T.copy()
         self._b_out = tensors["head.bias"]
 
@@ -131,6 +133,11 @@ class ActorRuntime:
         h = np.asarray(hidden, dtype=np.float32)
         for w, b in self._enc:
             x = np.maximum(x @ w + b, 0.0)
+        if not self._recurrent:
+            if h.shape != (x.shape[0], 0):
+                raise ValueError(f"hidden must be [{x.shape[0]}, 0] (feed-forward actor), got "
+                                 f"{h.shape}")
+            return np.asarray(x @ self._w_out + self._b_out, dtype=np.float32), h
         gi = x @ self._w_ih + self._b_ih
         gh = h @ self._w_hh + self._b_hh
         g = self.spec.gru_hidden

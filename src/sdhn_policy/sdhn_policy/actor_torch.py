@@ -1,8 +1,9 @@
 """Training-side actor: the shared MAPPO/SDHN policy network as a torch module.
 
 The only torch file in ``sdhn_policy``. Local observation (optionally + one-hot robot id) -> MLP
-encoder -> GRU cell -> categorical logits. ``export()`` produces the safetensors blob that
-``sdhn_policy.actor_runtime.ActorRuntime`` runs without torch.
+encoder -> GRU cell (none when ``gru_hidden`` is 0: feed-forward) -> categorical logits.
+``export()`` produces the safetensors blob that ``sdhn_policy.actor_runtime.ActorRuntime`` runs
+without torch.
 """
 
 from __future__ import annotations
@@ -49,10 +50,11 @@ class Actor(nn.Module):
             layers += [nn.Linear(width, h), nn.ReLU()]
             width = h
         self.encoder = nn.Sequential(*layers)
-        self.gru = nn.GRU(width, spec.gru_hidden)
+        # feed-forward (gru_hidden 0): no GRU, and hidden states of width 0 pass through
+        self.gru = nn.GRU(width, spec.gru_hidden) if spec.gru_hidden > 0 else None
         # how forward_sequence runs the GRU (a trainer may swap in an equal, faster one)
         self.gru_sequence: SequenceFn = gru_sequence
-        self.head = nn.Linear(spec.gru_hidden, spec.num_actions)
+        self.head = nn.Linear(spec.gru_hidden or width, spec.num_actions)
         nn.init.orthogonal_(self.head.weight, gain=0.01)  # near-uniform initial policy
         nn.init.zeros_(self.head.bias)
 
@@ -68,12 +70,16 @@ class Actor(nn.Module):
 
     def step(self, x: Tensor, h: Tensor) -> tuple[Tensor, Tensor]:
         """One step on inputs [X, input_size] and hidden [X, H] -> (logits [X, A], hidden)."""
+        if self.gru is None:
+            return self.head(self.encoder(x)), h
         out, h_next = self.gru(self.encoder(x)[None], h[None])
         return self.head(out[0]), h_next[0]
 
     def forward_sequence(self, x: Tensor, h0: Tensor, resets: Tensor) -> Tensor:
         """Re-run stored sequences: x [T, X, in], h0 [X, H], resets [T, X] bool (hidden is zeroed
         before step t where resets[t]) -> logits [T, X, A]."""
+        if self.gru is None:
+            return self.head(self.encoder(x))
         out, _ = self.gru_sequence(self.gru, self.encoder(x), h0[None], resets)
         return self.head(out)
 
@@ -84,10 +90,11 @@ class Actor(nn.Module):
         for k, lin in enumerate(linears):
             out[f"encoder.{k}.weight"] = lin.weight
             out[f"encoder.{k}.bias"] = lin.bias
-        out["gru.weight_ih"] = self.gru.weight_ih_l0
-        out["gru.weight_hh"] = self.gru.weight_hh_l0
-        out["gru.bias_ih"] = self.gru.bias_ih_l0
-        out["gru.bias_hh"] = self.gru.bias_hh_l0
+        if self.gru is not None:
+            out["gru.weight_ih"] = self.gru.weight_ih_l0
+            out["gru.weight_hh"] = self.gru.weight_hh_l0
+            out["gru.bias_ih"] = self.gru.bias_ih_l0
+            out["gru.bias_hh"] = self.gru.bias_hh_l0
         out["head.weight"] = self.head.weight
         out["head.bias"] = self.head.bias
         return {k: v for k, v in out.items() if isinstance(v, Tensor)}

@@ -98,6 +98,22 @@ def _linear(g: _Graph, x: str, weight: np.ndarray, bias: np.ndarray, hint: str) 
     return g.op("Add", [g.op("MatMul", [x, w]), g.const(bias, f"{hint}_b")], hint)
 
 
+def _gru_head(g: _Graph, spec: ActorSpec, tensors: Tensors, x: str) -> str:
+    """The GRU cell (torch's gate order r, z, n) writing ``hidden_out``, then the head: logits."""
+    gi = _linear(g, x, tensors["gru.weight_ih"], tensors["gru.bias_ih"], "gi")
+    gh = _linear(g, "hidden", tensors["gru.weight_hh"], tensors["gru.bias_hh"], "gh")
+    h = spec.gru_hidden
+    gi_r, gi_z, gi_n = (g.cols(gi, k * h, (k + 1) * h) for k in range(3))  # torch: r, z, n
+    gh_r, gh_z, gh_n = (g.cols(gh, k * h, (k + 1) * h) for k in range(3))
+    r = g.op("Sigmoid", [g.op("Add", [gi_r, gh_r])], "r")
+    z = g.op("Sigmoid", [g.op("Add", [gi_z, gh_z])], "z")
+    n = g.op("Tanh", [g.op("Add", [gi_n, g.op("Mul", [r, gh_n])])], "n")
+    keep = g.op("Mul", [z, "hidden"])
+    new = g.op("Mul", [g.op("Sub", [g.const(1.0, "one"), z]), n])
+    g.nodes.append(helper.make_node("Add", [new, keep], ["hidden_out"]))
+    return _linear(g, "hidden_out", tensors["head.weight"], tensors["head.bias"], "head")
+
+
 def actor_to_onnx(spec: ActorSpec, tensors: Tensors, *, version: int = 0,
                   doc: str = "") -> onnx.ModelProto:
     """The actor's forward pass as a checked ONNX model (see the module docstring)."""
@@ -120,18 +136,11 @@ def actor_to_onnx(spec: ActorSpec, tensors: Tensors, *, version: int = 0,
     for k in range(len(spec.hidden_sizes)):
         x = g.op("Relu", [_linear(g, x, tensors[f"encoder.{k}.weight"],
                                   tensors[f"encoder.{k}.bias"], f"enc{k}")])
-    gi = _linear(g, x, tensors["gru.weight_ih"], tensors["gru.bias_ih"], "gi")
-    gh = _linear(g, "hidden", tensors["gru.weight_hh"], tensors["gru.bias_hh"], "gh")
-    h = spec.gru_hidden
-    gi_r, gi_z, gi_n = (g.cols(gi, k * h, (k + 1) * h) for k in range(3))  # torch: r, z, n
-    gh_r, gh_z, gh_n = (g.cols(gh, k * h, (k + 1) * h) for k in range(3))
-    r = g.op("Sigmoid", [g.op("Add", [gi_r, gh_r])], "r")
-    z = g.op("Sigmoid", [g.op("Add", [gi_z, gh_z])], "z")
-    n = g.op("Tanh", [g.op("Add", [gi_n, g.op("Mul", [r, gh_n])])], "n")
-    keep = g.op("Mul", [z, "hidden"])
-    new = g.op("Mul", [g.op("Sub", [g.const(1.0, "one"), z]), n])
-    g.nodes.append(helper.make_node("Add", [new, keep], ["hidden_out"]))
-    logits = _linear(g, "hidden_out", tensors["head.weight"], tensors["head.bias"], "head")
+    if spec.gru_hidden == 0:  # feed-forward: the [X, 0] hidden state passes through
+        g.nodes.append(helper.make_node("Identity", ["hidden"], ["hidden_out"]))
+        logits = _linear(g, x, tensors["head.weight"], tensors["head.bias"], "head")
+    else:
+        logits = _gru_head(g, spec, tensors, x)
     g.nodes.append(helper.make_node("Identity", [logits], ["logits"]))
     outputs = [helper.make_tensor_value_info("logits", TensorProto.FLOAT,
                                              ["X", spec.num_actions]),

@@ -100,7 +100,7 @@ class ActorSpec:
     obs_size: int  # D: length of one robot's raw local observation (what the env sends)
     num_actions: int  # A: size of the categorical policy
     hidden_sizes: tuple[int, ...] = (64,)  # MLP encoder widths (ReLU after each layer)
-    gru_hidden: int = 64  # GRU hidden size
+    gru_hidden: int = 64  # GRU hidden size; 0 = no GRU (feed-forward: the head reads the MLP)
     use_robot_id: bool = False  # append a one-hot robot id of length num_robots to the obs
     num_robots: int = 0  # N (only used for the one-hot id)
     features: str = "identity"  # sdhn_policy.features transform applied to the raw observation
@@ -141,8 +141,8 @@ class ActorSpec:
         if len(self.hidden_sizes) > MAX_HIDDEN_LAYERS or any(s > MAX_SPEC_SIZE for s in sizes):
             raise WeightsError(f"actor spec is too large (at most {MAX_HIDDEN_LAYERS} hidden "
                                f"layers, sizes up to {MAX_SPEC_SIZE}): {_short(str(self))}")
-        if self.obs_size < 1 or self.num_actions < 1 or self.gru_hidden < 1:
-            raise WeightsError(f"actor spec has a non-positive size: {self}")
+        if self.obs_size < 1 or self.num_actions < 1 or self.gru_hidden < 0:
+            raise WeightsError(f"actor spec has a non-positive size (gru_hidden: negative): {self}")
         if any(h < 1 for h in self.hidden_sizes):
             raise WeightsError(f"actor spec has a non-positive hidden width: {self}")
         if self.use_robot_id and self.num_robots < 1:
@@ -161,11 +161,13 @@ class ActorSpec:
             shapes[f"encoder.{k}.bias"] = (h,)
             width = h
         g = self.gru_hidden
-        shapes["gru.weight_ih"] = (3 * g, width)
-        shapes["gru.weight_hh"] = (3 * g, g)
-        shapes["gru.bias_ih"] = (3 * g,)
-        shapes["gru.bias_hh"] = (3 * g,)
-        shapes["head.weight"] = (self.num_actions, g)
+        if g > 0:
+            shapes["gru.weight_ih"] = (3 * g, width)
+            shapes["gru.weight_hh"] = (3 * g, g)
+            shapes["gru.bias_ih"] = (3 * g,)
+            shapes["gru.bias_hh"] = (3 * g,)
+            width = g
+        shapes["head.weight"] = (self.num_actions, width)
         shapes["head.bias"] = (self.num_actions,)
         return shapes
 

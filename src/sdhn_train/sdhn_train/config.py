@@ -142,11 +142,12 @@ def validate(cfg: Config, resuming: bool = False) -> None:
     positive = {
         "env.num_envs": cfg.env.num_envs, "train.total_steps": cfg.train.total_steps,
         "train.threads": cfg.train.threads, "train.learner_processes": cfg.train.learner_processes,
-        "actor.gru_hidden": cfg.actor.gru_hidden,
         "eval.episodes": cfg.eval.episodes, "eval.instances": cfg.eval.instances,
     }
     for path, v in positive.items():
         need(v >= 1, path, "an integer >= 1", v)
+    need(cfg.actor.gru_hidden >= 0, "actor.gru_hidden", "an integer >= 0 (0 = feed-forward)",
+         cfg.actor.gru_hidden)
     for path, v in {"train.seed": cfg.train.seed, "eval.seed": cfg.eval.seed}.items():
         need(0 <= v < 2**32, path, "an integer in 0..2**32-1", v)
     cfg.ppo.validate()

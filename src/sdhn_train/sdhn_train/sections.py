@@ -64,7 +64,8 @@ class AlgoConfig:
 class ActorConfig:
     hidden_sizes: list[int] = field(default_factory=lambda: [64],
                                     metadata={"help": "MLP encoder widths before the GRU"})
-    gru_hidden: int = opt(64, "GRU hidden size")
+    gru_hidden: int = opt(64, "GRU hidden size; 0 = a feed-forward actor (no recurrence, as "
+                              "EPyMARL's use_rnn: false)")
     use_robot_id: bool = opt(False, "append a one-hot robot id to each local observation")
     init_from: str | None = opt(None, "start from this exported actor (.safetensors), e.g. one "
                                       "trained on maif-solo or a smaller team (warm start)")

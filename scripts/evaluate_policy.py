@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ from sdhn_train.analysis.heldout_eval import (
     WEDGE_STEPS,
     Policy,
     TorchPolicy,
+    default_planner_cache,
     evaluate_set,
     planner_makespans,
     records_json,
@@ -41,11 +41,6 @@ from sdhn_train.analysis.heldout_eval import (
 )
 
 EVAL_SETS = [s for s in INSTANCE_SETS if s != "procedural"]
-
-
-def default_cache() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "sdhn" / "planner"
 
 
 def resolve(actor: Path, task: str | None) -> tuple[str, Path, str]:
@@ -111,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--wedge-steps", type=int, default=WEDGE_STEPS,
                    help="K: a robot off its goal not moving for K steps at the end is wedged")
     p.add_argument("--no-planner", action="store_true", help="skip the planner's makespans")
-    p.add_argument("--planner-cache", type=Path, default=default_cache())
+    p.add_argument("--planner-cache", type=Path, default=default_planner_cache())
     p.add_argument("--out", type=Path, help="JSON with the summaries and per-instance records")
     p.add_argument("--markdown", type=Path, help="the markdown table")
     args = p.parse_args(argv)

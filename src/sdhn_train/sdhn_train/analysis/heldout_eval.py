@@ -139,6 +139,12 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
     return [out[e] for e in range(b)]
 
 
+def default_planner_cache() -> Path:
+    """Where the planner's makespans are cached per set: $XDG_CACHE_HOME/sdhn/planner."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "sdhn" / "planner"
+
+
 def planner_makespans(task: str, which: str, cache_dir: Path | None = None, *,
                       chunk: int = 50, seed: int = 0,
                       progress: bool = False) -> list[int | None]:

@@ -1,0 +1,141 @@
+#!/usr/bin/env python3
+"""Add the large held-out set to a shipped MAIF model's card: greedy play and, with
+``--temperature T``, sampled play at T (the mode its launch config deploys), on the 1,000
+instances on 200 maps no training run sees.
+
+    .venv/bin/python scripts/card_heldout_large.py models/maif-20-sdhn --temperature 0.25
+
+Writes ``card.json["heldout_large"]`` and a section of ``card.md`` (replacing an earlier one of
+the same title; the rest of the card, written by ``ship_model.py``, is kept), each file written
+atomically. The actor is checked against the card's weights checksum first, so a card never
+describes other weights. Success with its map-bootstrap interval, maps at 0, failures and the
+makespan over the centralised planner's (cached per set, as ``evaluate_policy.py`` does).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+from sdhn_train.analysis.heldout_eval import (
+    default_planner_cache,
+    evaluate_set,
+    planner_makespans,
+    set_checksum,
+    set_instances,
+    summarise,
+)
+
+SET = "heldout_large"
+TITLE = "## Large held-out set"
+
+
+def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
+             seed: int = 0) -> dict[str, Any]:
+    """card.json's ``heldout_large`` entry for the model directory ``model``."""
+    card = json.loads((model / "card.json").read_text())
+    task = str(card["env"])
+    if task not in MAIF_CONFIGS:
+        raise ValueError(f"{model}: the card's env {task!r} is not a MAIF task")
+    actor = model / "actor.safetensors"
+    sha = str(json.loads(actor.with_suffix(".json").read_text()).get("sha256", ""))
+    if sha != card.get("weights_sha256"):
+        raise ValueError(f"{model}: actor.safetensors (sha256 {sha[:12]}) is not the card's "
+                         f"weights ({str(card.get('weights_sha256'))[:12]}); ship it again")
+    rt = ActorRuntime.from_file(actor)
+    inst = set_instances(task, SET)
+    plan = None if planner_cache is None else planner_makespans(task, SET, planner_cache,
+                                                                progress=True)
+    modes: dict[str, Any] = {}
+    for t in (None, temperature):
+        if t is None and "greedy" in modes:
+            continue
+        recs = evaluate_set(rt, task, SET, sample=t is not None, seed=seed,
+                            temperature=1.0 if t is None else t)
+        s = summarise(recs, plan, inst.num_formations)
+        name = "greedy" if t is None else f"sampled at T={t:g}"
+        modes[name] = {k: s.get(k) for k in (
+            "success_rate", "success_ci95_maps", "maps_with_zero_success", "failures",
+            "makespan_ratio_mean", "makespan_ratio_p90")}
+        print(f"[card] {model.name} {name}: success {s['success_rate']:.3f}", flush=True)
+    return {"set": SET, "set_checksum": set_checksum(inst), "instances": inst.num_instances,
+            "maps": inst.num_instances // inst.num_formations, "seed": seed, "modes": modes,
+            "deploy": {"greedy": temperature is None, "temperature": temperature or 1.0}}
+
+
+def section(entry: dict[str, Any]) -> str:
+    def ratio(x: float | None) -> str:
+        return "–" if x is None else f"{x:.3f}"
+
+    rows = []
+    for name, m in entry["modes"].items():
+        lo, hi = m["success_ci95_maps"]
+        f = m["failures"]
+        rows.append(f"| {name} | {m['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] | "
+                    f"{m['maps_with_zero_success']} | {f['deadlock']} / {f['wander']} | "
+                    f"{ratio(m['makespan_ratio_mean'])}, {ratio(m['makespan_ratio_p90'])} |")
+    d = entry["deploy"]
+    how = ("greedy" if d["greedy"] else f"`greedy: false`, `temperature: {d['temperature']:g}`")
+    return f"""{TITLE}
+
+{entry['instances']:,} instances on {entry['maps']} maps no training run sees (set checksum
+`{entry['set_checksum']}`), one episode each, the NumPy runtime, written by
+`scripts/card_heldout_large.py`. Deploy with {how}.
+
+| mode | success [95 % CI, maps] | maps at 0 | deadlock / wander | makespan / planner (mean, p90) |
+|---|---|---|---|---|
+{chr(10).join(rows)}
+"""
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def update_card(model: Path, entry: dict[str, Any]) -> None:
+    card = json.loads((model / "card.json").read_text())
+    card["heldout_large"] = entry
+    md = (model / "card.md").read_text()
+    if TITLE in md:  # replace the earlier section (it runs to the end of the card)
+        md = md[:md.index(TITLE)].rstrip("\n") + "\n"
+    _write_atomic(model / "card.json", json.dumps(card, indent=2) + "\n")
+    _write_atomic(model / "card.md", md.rstrip("\n") + "\n\n" + section(entry))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
+    p.add_argument("models", nargs="+", type=Path, help="model directories (models/<name>)")
+    p.add_argument("--temperature", type=float, help="also sampled play at this temperature, "
+                                                     "the mode the card recommends")
+    p.add_argument("--no-planner", action="store_true", help="skip the planner's makespans")
+    p.add_argument("--planner-cache", type=Path, default=default_planner_cache())
+    args = p.parse_args(argv)
+    if args.temperature is not None and not (math.isfinite(args.temperature)
+                                             and args.temperature > 0):
+        print("card_heldout_large: --temperature must be a finite number > 0", file=sys.stderr)
+        return 2
+    for model in args.models:
+        try:
+            entry = evaluate(model, args.temperature,
+                             None if args.no_planner else args.planner_cache)
+        except (OSError, ValueError, KeyError) as e:
+            print(f"card_heldout_large: {e}", file=sys.stderr)
+            return 2
+        update_card(model, entry)
+        print(f"[card] wrote {model}/card.md and card.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

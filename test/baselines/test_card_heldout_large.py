@@ -1,0 +1,52 @@
+"""scripts/card_heldout_large.py: a shipped card gains the large held-out set (greedy and a
+sampled mode) without losing what ship_model wrote, rerunning replaces that section, and a card
+whose checksum names other weights is refused."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from script_modules import load_script
+
+ROOT = Path(__file__).resolve().parents[2]
+MODEL = ROOT / "models" / "maif-solo-mappo"
+
+
+def test_card_gains_the_large_set_and_keeps_the_rest(tmp_path: Path) -> None:
+    card = load_script("card_heldout_large")
+    model = tmp_path / "maif-solo-mappo"
+    shutil.copytree(MODEL, model)
+    before = (model / "card.md").read_text()
+    assert card.main([str(model), "--temperature", "0.5", "--no-planner"]) == 0
+    data = json.loads((model / "card.json").read_text())
+    entry = data["heldout_large"]
+    assert entry["instances"] == 1000 and entry["maps"] == 200
+    assert set(entry["modes"]) == {"greedy", "sampled at T=0.5"}
+    assert entry["deploy"] == {"greedy": False, "temperature": 0.5}
+    for m in entry["modes"].values():
+        lo, hi = m["success_ci95_maps"]
+        assert lo <= m["success_rate"] <= hi
+    md = (model / "card.md").read_text()
+    assert md.startswith(before.rstrip("\n")) and md.count(card.TITLE) == 1
+    assert "`temperature: 0.5`" in md
+    # again, greedy only: the section is replaced, not appended
+    assert card.main([str(model), "--no-planner"]) == 0
+    md = (model / "card.md").read_text()
+    assert md.count(card.TITLE) == 1 and "sampled at" not in md
+    assert json.loads((model / "card.json").read_text())["evaluation"] == data["evaluation"]
+
+
+def test_card_of_other_weights_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]
+                                          ) -> None:
+    card = load_script("card_heldout_large")
+    model = tmp_path / "m"
+    shutil.copytree(MODEL, model)
+    data = json.loads((model / "card.json").read_text())
+    data["weights_sha256"] = "0" * 64
+    (model / "card.json").write_text(json.dumps(data))
+    assert card.main([str(model), "--no-planner"]) == 2
+    assert "ship it again" in capsys.readouterr().err
+    assert "heldout_large" not in json.loads((model / "card.json").read_text())

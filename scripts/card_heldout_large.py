@@ -87,7 +87,7 @@ def section(entry: dict[str, Any]) -> str:
     return f"""{TITLE}
 
 {entry['instances']:,} instances on {entry['maps']} maps no training run sees (set checksum
-`{entry['set_checksum']}`), one episode each, the NumPy runtime, written by
+`{entry['set_checksum'][:12]}`), one episode each, with the NumPy runtime; written by
 `scripts/card_heldout_large.py`. Deploy with {how}.
 
 | mode | success [95 % CI, maps] | maps at 0 | deadlock / wander | makespan / planner (mean, p90) |

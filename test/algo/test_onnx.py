@@ -52,6 +52,20 @@ def _recorded_maif_tiny_obs() -> np.ndarray:
     return np.stack(obs)
 
 
+def _rware_observations(env_name: str, steps: int) -> np.ndarray:
+    """[T, N, D] observations of one RWARE env played with seeded random actions."""
+    from sdhn_sim.envs import make_env
+
+    env = make_env(env_name, num_envs=1, seed=0)
+    rng = np.random.default_rng(0)
+    obs, _ = env.reset(seed=0)
+    out = []
+    for _ in range(steps):
+        out.append(obs[0])
+        obs = env.step(rng.integers(0, env.num_actions, size=(1, env.num_robots))).obs
+    return np.stack(out).astype(np.float32)
+
+
 def _rollout(rt: ActorRuntime, obs: np.ndarray, ids: np.ndarray | None) -> tuple[np.ndarray, ...]:
     """Run a [T, X, D] sequence through ``rt`` keeping the GRU state: logits [T, X, A]."""
     h = rt.initial_state(obs.shape[1])
@@ -98,11 +112,16 @@ def test_shipped_actor_onnx_matches_numpy_on_recorded_observations(model: Path) 
     equal, logits to 1e-5); MAIF actors of other team sizes take the same 57-float layout."""
     rt_np = ActorRuntime.from_file(model / "actor.safetensors")
     rt_onnx = OnnxActorRuntime.from_file(model / "actor.safetensors")
-    if rt_np.spec.obs_size != 57:
-        pytest.fail(f"{model.name}: not a MAIF actor; add its recorded observations here")
-    obs = _recorded_maif_tiny_obs()
-    x = 4
-    seq = obs[: (len(obs) // x) * x].reshape(-1, x, 57)[:200]
+    env = json.loads((model / "card.json").read_text())["env"]
+    if env.startswith("rware"):  # no RWARE recording: its own env's observations, random play
+        x = rt_np.spec.num_robots
+        seq = _rware_observations(env, steps=200)
+    elif rt_np.spec.obs_size == 57:
+        obs = _recorded_maif_tiny_obs()
+        x = 4
+        seq = obs[: (len(obs) // x) * x].reshape(-1, x, 57)[:200]
+    else:
+        pytest.fail(f"{model.name}: neither MAIF nor RWARE; add its observations here")
     ids = np.arange(x) % max(rt_np.spec.num_robots, 1) if rt_np.spec.use_robot_id else None
     got, _ = _rollout(rt_onnx, seq, ids)
     want, _ = _rollout(rt_np, seq, ids)

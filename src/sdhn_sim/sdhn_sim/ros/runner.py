@@ -102,3 +102,8 @@ def run_node(
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+        # Finalise the rmw context now (it deletes the DDS participant once the executor and
+        # node let go, at the latest when this frame returns). Left to the process's exit, Fast
+        # DDS's static factory destructor disables the participant itself and was seen to spin
+        # there for over 10 s under load, after Python (and this watchdog) had finished.
+        context.destroy()

@@ -55,9 +55,7 @@ def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
     plan = None if planner_cache is None else planner_makespans(task, SET, planner_cache,
                                                                 progress=True)
     modes: dict[str, Any] = {}
-    for t in (None, temperature):
-        if t is None and "greedy" in modes:
-            continue
+    for t in (None, *([] if temperature is None else [temperature])):
         recs = evaluate_set(rt, task, SET, sample=t is not None, seed=seed,
                             temperature=1.0 if t is None else t)
         s = summarise(recs, plan, inst.num_formations)

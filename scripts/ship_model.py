@@ -189,8 +189,8 @@ def evaluate_rware(rt: ActorRuntime, env_name: str, episodes: int, seed: int
           flush=True)
     for name in POLICIES:
         r = evaluate_baseline(env_name, name, episodes=episodes, seed=first)
-        results[name] = {"deliveries_mean": round(float(str(r["deliveries_mean"])), 3),
-                         "deliveries_std": round(float(str(r["deliveries_std"])), 3)}
+        results[name] = {"deliveries_mean": round(r["deliveries_mean"], 3),
+                         "deliveries_std": round(r["deliveries_std"], 3)}
         print(f"[ship] {name}: {results[name]['deliveries_mean']}", flush=True)
     return results, rware_card_markdown
 

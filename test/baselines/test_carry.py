@@ -8,31 +8,19 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
+import yaml
+
 from sdhn_train.analysis.carry import MANIFEST, main, progress, restore, save
 from sdhn_train.analysis.experiments import DONE, load_suite, run_suite
 from sdhn_train.checkpoint import checkpoints
 
-from .test_experiments import _results  # metrics rows without the wall-clock ones
+from .test_experiments import RESUME_SUITE, _results
 
-SUITE = """
-name: carry
-methods:
-  sdhn: {algo: sdhn}
-  mappo: {algo: mappo}
-tasks:
-  maif-tiny: {env.max_steps: 40}
-seeds: [1]
-budgets:
-  quick:
-    set:
-      train.total_steps: 768
-      env.num_envs: 4
-      ppo.rollout_len: 32
-      ppo.num_minibatches: 2
-      eval.interval: 256
-      eval.episodes: 2
-      log.checkpoint_interval: 256
-"""
+# test_experiments' resume suite (its budget leaves several checkpoints per run), with two PPO
+# methods: the value-mixing runs would only make this slower.
+SUITE = yaml.safe_dump({**yaml.safe_load(RESUME_SUITE), "name": "carry",
+                        "methods": {"sdhn": {"algo": "sdhn"}, "mappo": {"algo": "mappo"}}},
+                       sort_keys=False)
 
 
 def test_carry_skips_finished_and_resumes_unfinished_elsewhere(tmp_path: Path) -> None:

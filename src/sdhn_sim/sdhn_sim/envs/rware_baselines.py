@@ -8,6 +8,8 @@ baselines beside a shipped RWARE policy on its card).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from sdhn_sim.envs import make_env
@@ -21,7 +23,7 @@ LABELS = {"random": "random", "scripted": "scripted (centralised)",
           "decentralised": "scripted (decentralised, own observation)"}
 
 
-def evaluate_baseline(name: str, policy: str, *, episodes: int, seed: int) -> dict[str, object]:
+def evaluate_baseline(name: str, policy: str, *, episodes: int, seed: int) -> dict[str, Any]:
     """Deliveries and return per episode (mean, population std, and each episode's)."""
     if policy not in POLICIES:
         raise ValueError(f"policy {policy!r}; allowed: {', '.join(POLICIES)}")

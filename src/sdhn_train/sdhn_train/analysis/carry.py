@@ -139,7 +139,7 @@ def save(logdir: Path, dest: Path) -> list[str]:
         except (ValueError, KeyError, TypeError):
             old = {}
     runs = {**old, **manifest}
-    (dest / MANIFEST).write_text(json.dumps({"source": logdir.name, "runs": runs}, indent=1,
+    (dest / MANIFEST).write_text(json.dumps({"runs": runs}, indent=1,
                                             sort_keys=True) + "\n")
     return lines
 

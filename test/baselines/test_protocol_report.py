@@ -72,3 +72,85 @@ def test_report_refuses_an_empty_logdir(tmp_path: Path) -> None:
                           str(tmp_path / "logs"), str(tmp_path / "out")],
                          capture_output=True, text=True, timeout=300, check=False)
     assert res.returncode == 2 and "protocol_report:" in res.stderr
+
+
+def _rware_run(logdir: Path, method: str, algo: str, seed: int, *, final: float,
+               actor: Path | None = None, absolute: float | None = None) -> Path:
+    """A finished RWARE run: eval/deliveries rising to ``final``; the absolute metric cached
+    (``absolute``) or left to compute from a real actor file (``actor``)."""
+    d = logdir / f"rware-tiny-2ag__{method}__s{seed}"
+    d.mkdir(parents=True)
+    cfg = {"env": {"name": "rware-tiny-2ag", "max_steps": None}, "algo": {"name": algo},
+           "train": {"total_steps": 2000, "seed": seed}, "sdhn": {}}
+    (d / "config.yaml").write_text(yaml.safe_dump(cfg))
+    (d / "run.json").write_text(json.dumps({"suite": "synthetic", "method": method,
+                                            "task": "rware-tiny-2ag", "seed": seed}))
+    rows = ["step,wall_time,tag,value"]
+    for k, step in enumerate((1000, 2000)):
+        rows += [f"{step},0,eval/deliveries,{final * (k + 1) / 2}",
+                 f"{step},0,eval/success_rate,0.0"]
+    (d / "metrics.csv").write_text("\n".join(rows) + "\n")
+    if actor is not None:  # the weights and their checksum sidecar
+        for f in (actor, actor.with_suffix(".json")):
+            (d / f.name).write_bytes(f.read_bytes())
+    if absolute is not None:
+        recs = [{"seed": 1_000_000 + i, "deliveries": absolute} for i in range(4)]
+        (d / "absolute_deliveries.json").write_text(json.dumps(
+            {"summary": {"deliveries_mean": absolute}, "records": recs}))
+    (d / "DONE.json").write_text("{}")
+    return d
+
+
+def test_rware_report_pairs_sdhn_with_mappo_at_the_same_settings(tmp_path: Path) -> None:
+    """RWARE is judged by deliveries: sdhn_ent01 is compared with mappo_ent01 (same settings),
+    a method without an SDHN partner gets no probability of improvement, and the absolute
+    metric of a real shipped actor is computed on the cards' episodes and cached."""
+    logdir, out = tmp_path / "logs", tmp_path / "out"
+    for s in (1, 2, 3):
+        _rware_run(logdir, "sdhn_ent01", "sdhn", s, final=30.0 + s, absolute=30.0 + s)
+        _rware_run(logdir, "mappo_ent01", "mappo", s, final=10.0 + s, absolute=10.0 + s)
+        _rware_run(logdir, "mappo_ff", "mappo", s, final=1.0 * s, absolute=1.0 * s)
+    shipped = ROOT / "models" / "rware-tiny-2ag-mappo"
+    live = _rware_run(logdir, "mappo_ent01", "mappo", 4, final=23.0,
+                      actor=shipped / "actor.safetensors")
+    out.mkdir()
+    (out / "reference_policies.json").write_text(json.dumps(
+        {"rware-tiny-2ag": {"random": 0.0, "scripted": 22.9, "decentralised": 19.1}}))
+    report(logdir, out, None, compute_absolute=True, reps=200)
+
+    card = json.loads((shipped / "card.json").read_text())
+    computed = json.loads((live / "absolute_deliveries.json").read_text())
+    assert computed["summary"]["deliveries_mean"] == card["evaluation"]["policy"]["deliveries_mean"]
+    assert len(computed["records"]) == 100
+
+    proto = json.loads((out / "protocol.json").read_text())["tasks"]["rware-tiny-2ag"]
+    assert proto["mappo_ent01"]["sdhn_partner"] == "sdhn_ent01"
+    assert proto["mappo_ent01"]["poi_sdhn_over"]["point"] == 1.0
+    assert proto["mappo_ff"]["poi_sdhn_over"] is None  # no sdhn_ff in the suite
+    assert proto["mappo_ff"]["final"] == [1.0, 2.0, 3.0]
+    assert proto["reference_policies"]["scripted"] == 22.9
+    claims = (out / "claims.md").read_text()
+    line = next(x for x in claims.splitlines() if "outperforms MAPPO" in x)
+    assert "(both at the `ent01` settings)" in line and line.endswith("| reproduced |")
+    assert "MAPPO (ff)" not in claims
+    md = (out / "protocol.md").read_text()
+    assert "scripted 22.9" in md and "MAPPO (ent01)" in md
+    me = json.loads((out / "marl_eval.json").read_text())
+    run = me["RWARE"]["rware-tiny-2ag"]["mappo_ent01"]["4"]
+    assert run["step_1"] == {"step_count": 2000, "deliveries": [23.0]}
+    assert len(run["absolute_metrics"]["deliveries"]) == 100
+
+
+def test_pairs_and_labels() -> None:
+    from sdhn_train.analysis.protocol_report import label, sdhn_partner
+
+    methods = {"sdhn", "sdhn_ent01", "mappo", "mappo_ent01", "mappo_ff", "hgcn_mix",
+               "sdhn_wo_lsk"}
+    assert sdhn_partner("mappo", methods) == "sdhn"
+    assert sdhn_partner("mappo_ent01", methods) == "sdhn_ent01"
+    assert sdhn_partner("mappo_ff", methods) is None
+    assert sdhn_partner("hgcn_mix", methods) == "sdhn"  # not read as hgcn + "_mix"
+    assert sdhn_partner("sdhn_wo_lsk", methods) == "sdhn"
+    assert sdhn_partner("sdhn", methods) is None
+    assert label("mappo_ff_ent01") == "MAPPO (ff_ent01)"
+    assert label("sdhn_wo_lsk") == "SDHN w/o L_Sk"

@@ -6,19 +6,30 @@ directory only:
 Reads every finished run of LOGDIR (``DONE.json``; unfinished runs are listed, not counted) and
 writes to OUTDIR:
 
-- ``protocol.md`` / ``protocol.json``: per task and method, the final greedy success on the 100
-  fixed instances and on the 100 held-out ones, and the **absolute metric** (the run's final
-  actor re-evaluated on the 1,000-instance large held-out set, with its makespan over the
-  planner's), each as IQM and mean with 95 % stratified bootstrap intervals over seeds; the
-  probability of improvement of SDHN over every other method;
-- ``sample_efficiency.png``: IQM of greedy success over training with 95 % bands, per task;
+- ``protocol.md`` / ``protocol.json``: per task and method, the final greedy score and the
+  **absolute metric** (the run's final actor re-evaluated on episodes no training saw), each as
+  IQM and mean with 95 % stratified bootstrap intervals over seeds; the probability of
+  improvement of SDHN over every method it is paired with. The score depends on the task:
+
+  - MAIF: success on the 100 fixed instances and on the 100 held-out ones; absolute: the
+    1,000-instance large held-out set, with its makespan over the planner's;
+  - RWARE: requested shelves delivered per 500-step episode (greedy, the training-time
+    evaluation); absolute: 100 episodes from seed ``RWARE_EVAL_SEED`` (the shipped cards'
+    episodes), beside random and both scripted policies on the same seeds;
+- ``sample_efficiency.png``: IQM of the greedy score over training with 95 % bands, per task;
 - ``marl_eval.json``: the same data in marl-eval's raw-data format;
 - ``claims.md``: the paper's claims, our measurement with its interval, our budget against the
   paper's, and a verdict (reproduced / contradicted / inconclusive at this budget).
 
+**Pairs.** A method named ``<baseline><variant>`` (``mappo``, ``mappo_ent01``) is compared with
+``sdhn<variant>`` (``sdhn``, ``sdhn_ent01``) where the suite has it: the same settings, only the
+algorithm differs. SDHN's own variants (ablations, the 1-layer generator) are compared with
+``sdhn``.
+
 The absolute metric needs each run's ``actor.safetensors``; it is computed once per run and
-cached in ``<run>/heldout_large.json`` (with the set's checksum; the planner's makespans in the
-planner cache). All statistics come from ``protocol_stats`` (rliable).
+cached in the run directory (``heldout_large.json`` for MAIF, with the set's checksum and the
+planner's makespans in the planner cache; ``absolute_deliveries.json`` for RWARE). All
+statistics come from ``protocol_stats`` (rliable).
 """
 
 from __future__ import annotations
@@ -36,14 +47,42 @@ import numpy as np
 from sdhn_train.analysis import protocol_stats as ps
 from sdhn_train.analysis.figures import FigureError, Run, load_runs
 
-SUCCESS_TAGS = {"train": "eval/success_rate", "heldout": "eval/heldout_success_rate"}
 PAPER_BUDGET = "10-20M"  # team-steps per run in the paper's configs
 PAPER_MAKESPAN_RATIO = 0.77  # "a 23 % reduction in makespan compared to MAPPO"
 LABELS = {"sdhn": "SDHN", "mappo": "MAPPO", "qmix": "QMIX", "dicg": "DICG",
           "hgcn_mix": "HGCN-MIX", "sdhn_wo_lsk": "SDHN w/o L_Sk", "sdhn_wo_shr": "SDHN w/o SHR",
           "sdhn_generator_1_layer": "SDHN, 1-layer generator"}
 BASELINES = ("mappo", "qmix", "dicg", "hgcn_mix")
-ABSOLUTE_FILE = "heldout_large.json"
+ABLATIONS = ("sdhn_wo_lsk", "sdhn_wo_shr")
+
+
+@dataclass(frozen=True)
+class Domain:
+    """What a task family is judged by."""
+
+    env: str  # marl-eval's environment name
+    metric: str  # marl-eval's metric name, and the score's name in the tables
+    tag: str  # the training-time greedy evaluation's metrics.csv tag
+    heldout_tag: str | None  # greedy score on held-out instances during training (MAIF)
+    absolute_file: str  # the absolute metric's cache in the run directory
+    absolute_key: str  # its summary's headline number
+    digits: int  # decimals in the tables
+    unit: str  # what the number counts, for the figure
+
+
+MAIF = Domain("MAIF", "success_rate", "eval/success_rate", "eval/heldout_success_rate",
+              "heldout_large.json", "success_rate", 2, "greedy success (100 fixed instances)")
+RWARE = Domain("RWARE", "deliveries", "eval/deliveries", None, "absolute_deliveries.json",
+               "deliveries_mean", 1, "greedy deliveries per episode")
+RWARE_ABSOLUTE_EPISODES = 100
+
+
+def domain_of(task: str) -> Domain:
+    if task.startswith("maif"):
+        return MAIF
+    if task.startswith("rware"):
+        return RWARE
+    raise ValueError(f"task {task!r}: no protocol for it (allowed: maif-*, rware-*)")
 
 
 @dataclass
@@ -51,8 +90,8 @@ class MethodData:
     """Per-run scores of one method on one task (runs in seed order)."""
 
     seeds: list[int] = field(default_factory=list)
-    train: list[float] = field(default_factory=list)
-    heldout: list[float] = field(default_factory=list)
+    train: list[float] = field(default_factory=list)  # final greedy score (MAIF: fixed set)
+    heldout: list[float] = field(default_factory=list)  # MAIF only
     absolute: list[float | None] = field(default_factory=list)
     ratio: list[float | None] = field(default_factory=list)  # makespan / planner's, large set
     steps: list[int] = field(default_factory=list)  # team-steps each run trained
@@ -64,9 +103,12 @@ class MethodData:
                                                                         if v is not None]
 
     def headline(self) -> tuple[str, list[float]]:
-        """(which score, values): the absolute metric where every run has it, else held-out."""
+        """(which score, values): the absolute metric where every run has it, else held-out
+        (MAIF), else the training-time evaluation (RWARE)."""
         a = self.absolute_scores()
-        return ("absolute", a) if a is not None else ("heldout", self.heldout)
+        if a is not None:
+            return "absolute", a
+        return ("heldout", self.heldout) if self.heldout else ("final", self.train)
 
 
 def is_done(run: Run) -> bool:
@@ -74,14 +116,32 @@ def is_done(run: Run) -> bool:
 
 
 def absolute_metric(run: Run, planner_cache: Path | None, compute: bool) -> dict[str, Any] | None:
-    """The run's final actor on the large held-out set (cached in the run directory)."""
-    cache = run.path / ABSOLUTE_FILE
+    """The run's final actor on episodes no training saw (cached in the run directory)."""
+    dom = domain_of(run.task)
+    cache = run.path / dom.absolute_file
     actor = run.path / "actor.safetensors"
     if cache.is_file():
         return dict(json.loads(cache.read_text()))
-    if not compute or not actor.is_file() or not run.task.startswith("maif"):
+    if not compute or not actor.is_file():
         return None
     from sdhn_policy.actor_runtime import ActorRuntime
+    from sdhn_train.analysis.heldout_eval import write_json
+
+    rt = ActorRuntime.from_file(actor)
+    if dom is RWARE:
+        from sdhn_policy.deploy_eval import RWARE_EVAL_SEED, rware_deliveries
+
+        res = rware_deliveries(rt, run.task, RWARE_ABSOLUTE_EPISODES, RWARE_EVAL_SEED)
+        out: dict[str, Any] = {
+            "episodes": res["episodes"], "seeds": res["seeds"],
+            "summary": {"deliveries_mean": res["deliveries_mean"],
+                        "deliveries_std": res["deliveries_std"], "return": res["return"]},
+            "records": [{"seed": RWARE_EVAL_SEED + i, "deliveries": k}
+                        for i, k in enumerate(res["deliveries"])]}
+        write_json(cache, out)
+        print(f"[protocol] {run.path.name}: {res['deliveries_mean']:.1f} deliveries per episode "
+              f"on seeds {res['seeds']}", flush=True)
+        return out
     from sdhn_train.analysis.heldout_eval import (
         evaluate_set,
         planner_makespans,
@@ -89,20 +149,31 @@ def absolute_metric(run: Run, planner_cache: Path | None, compute: bool) -> dict
         set_checksum,
         set_instances,
         summarise,
-        write_json,
     )
 
     inst = set_instances(run.task, "heldout_large")
-    recs = evaluate_set(ActorRuntime.from_file(actor), run.task, "heldout_large",
-                        reward=run.reward)
+    recs = evaluate_set(rt, run.task, "heldout_large", reward=run.reward)
     plan = planner_makespans(run.task, "heldout_large", planner_cache, progress=True)
-    out: dict[str, Any] = {"set": "heldout_large", "set_checksum": set_checksum(inst),
-                           "summary": summarise(recs, plan, inst.num_formations),
-                           "records": records_json(recs)}
+    out = {"set": "heldout_large", "set_checksum": set_checksum(inst),
+           "summary": summarise(recs, plan, inst.num_formations),
+           "records": records_json(recs)}
     write_json(cache, out)
     print(f"[protocol] {run.path.name}: large held-out success "
           f"{out['summary']['success_rate']:.3f}", flush=True)
     return out
+
+
+def absolute_records(run: Run) -> dict[str, list[float]] | None:
+    """marl-eval's ``absolute_metrics`` of a run: one value per evaluation episode."""
+    dom = domain_of(run.task)
+    cache = run.path / dom.absolute_file
+    if not cache.is_file():
+        return None
+    recs = json.loads(cache.read_text())["records"]
+    if dom is RWARE:
+        return {"deliveries": [float(x["deliveries"]) for x in recs]}
+    return {"success_rate": [float(x["success"]) for x in recs],
+            "episode_length": [float(x["length"]) for x in recs]}
 
 
 def collect(runs: list[Run], planner_cache: Path | None,
@@ -112,24 +183,27 @@ def collect(runs: list[Run], planner_cache: Path | None,
     for r in sorted(runs, key=lambda r: (r.task, r.method, r.seed)):
         if not is_done(r):
             continue
-        train, held = r.final(SUCCESS_TAGS["train"]), r.final(SUCCESS_TAGS["heldout"])
-        if train is None or held is None:
-            continue  # a run without a greedy evaluation (RWARE) is not part of this protocol
+        dom = domain_of(r.task)
+        train = r.final(dom.tag)
+        held = r.final(dom.heldout_tag) if dom.heldout_tag else None
+        if train is None or (dom.heldout_tag and held is None):
+            continue  # a run without a greedy evaluation is not part of this protocol
         d = out[r.task][r.method]
         d.seeds.append(r.seed)
         d.train.append(train)
-        d.heldout.append(held)
+        if held is not None:
+            d.heldout.append(held)
         d.steps.append(int(r.config["train"]["total_steps"]))
         d.runs.append(r)
         ab = absolute_metric(r, planner_cache, compute_absolute)
-        d.absolute.append(None if ab is None else float(ab["summary"]["success_rate"]))
+        d.absolute.append(None if ab is None else float(ab["summary"][dom.absolute_key]))
         d.ratio.append(None if ab is None else ab["summary"].get("makespan_ratio_mean"))
     return out
 
 
 def curves(data: MethodData) -> tuple[np.ndarray, np.ndarray] | None:
     """(steps [P], success [runs, P]) on the evaluation steps every run logged."""
-    series = [r.series.get(SUCCESS_TAGS["train"]) for r in data.runs]
+    series = [r.series.get(domain_of(r.task).tag) for r in data.runs]
     if not series or any(s is None for s in series):
         return None
     common = sorted(set.intersection(*(set(s[0].tolist()) for s in series if s is not None)))
@@ -141,7 +215,32 @@ def curves(data: MethodData) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def label(method: str) -> str:
-    return LABELS.get(method, method)
+    """'MAPPO' for mappo, 'MAPPO (ent01)' for a variant mappo_ent01."""
+    if method in LABELS:
+        return LABELS[method]
+    for base in sorted(LABELS, key=len, reverse=True):
+        if method.startswith(base + "_"):
+            return f"{LABELS[base]} ({method[len(base) + 1:]})"
+    return method
+
+
+def split_variant(method: str) -> tuple[str, str] | None:
+    """(baseline, variant suffix) of a baseline method: mappo_ent01 -> (mappo, _ent01)."""
+    for base in sorted(BASELINES, key=len, reverse=True):
+        if method == base or method.startswith(base + "_"):
+            return base, method[len(base):]
+    return None
+
+
+def sdhn_partner(method: str, methods: Any) -> str | None:
+    """The SDHN method ``method`` is compared with (see Pairs above), if the suite has it."""
+    if method.startswith("sdhn"):
+        return "sdhn" if method != "sdhn" and "sdhn" in methods else None
+    split = split_variant(method)
+    if split is None:
+        return None
+    partner = "sdhn" + split[1]
+    return partner if partner in methods else None
 
 
 def verdict(est: ps.Estimate, better_above: float) -> str:
@@ -158,23 +257,30 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
     rows = []
     for task in sorted(tasks):
         ms = tasks[task]
-        if "sdhn" not in ms:
-            continue
-        sd = ms["sdhn"]
-        which, sd_scores = sd.headline()
-        budget = f"{max(sd.steps) / 1e6:g}M × {len(sd.seeds)} seeds"
-        for base in (*BASELINES, "sdhn_wo_lsk", "sdhn_wo_shr"):
-            if base not in ms:
+        dom = domain_of(task)
+        for base in ms:
+            sdhn = sdhn_partner(base, ms)
+            split = split_variant(base)
+            if sdhn is None or (split is None and base not in ABLATIONS):
                 continue
+            sd = ms[sdhn]
+            which, sd_scores = sd.headline()
+            budget = f"{max(sd.steps) / 1e6:g}M × {len(sd.seeds)} seeds"
             _, b_scores = ms[base].headline()
             poi = ps.probability_of_improvement(sd_scores, b_scores, reps)
-            claim = (f"SDHN outperforms {label(base)} on {task}" if base in BASELINES else
-                     f"{label(base)} is worse than SDHN on {task} (ablation)")
+            if split is not None:
+                at = f" (both at the `{split[1][1:]}` settings)" if split[1] else ""
+                claim = f"SDHN outperforms {label(split[0])} on {task}{at}"
+            else:
+                claim = f"{label(base)} is worse than SDHN on {task} (ablation)"
             rows.append({"claim": claim,
-                         "measurement": f"P(SDHN > {label(base)}) = {poi.fmt()} ({which} "
-                                        f"success, {len(b_scores)} seeds)",
+                         "measurement": f"P({label(sdhn)} > {label(base)}) = {poi.fmt()} "
+                                        f"({which} {dom.metric}, {len(sd_scores)} vs "
+                                        f"{len(b_scores)} seeds)",
                          "budget": budget, "verdict": verdict(poi, 0.5)})
-        if "mappo" in ms:
+        if dom is MAIF and "sdhn" in ms and "mappo" in ms:
+            sd = ms["sdhn"]
+            budget = f"{max(sd.steps) / 1e6:g}M × {len(sd.seeds)} seeds"
             sm = [r for r in sd.ratio if r is not None]
             mm = [r for r in ms["mappo"].ratio if r is not None]
             if len(sm) == len(sd.ratio) and len(mm) == len(ms["mappo"].ratio) and sm and mm:
@@ -194,9 +300,11 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
                 est = ps.interval_estimates({base: scores}, reps)[base]["mean"]
                 v = ("reproduced" if est.high < 0.5 else "contradicted" if est.low >= 0.5 else
                      "inconclusive at this budget")
+                b = ms[base]
                 rows.append({"claim": f"{label(base)} fails on {task} (success below 0.5)",
                              "measurement": f"{label(base)} mean {w} success {est.fmt()}",
-                             "budget": budget, "verdict": v})
+                             "budget": f"{max(b.steps) / 1e6:g}M × {len(b.seeds)} seeds",
+                             "verdict": v})
     return rows
 
 
@@ -213,62 +321,124 @@ def claims_markdown(rows: list[dict[str, str]], source: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def reference_policies(task: str, cache: Path, compute: bool) -> dict[str, float] | None:
+    """RWARE: deliveries per episode of random and both scripted policies on the absolute
+    metric's episodes, cached in ``cache`` (a JSON file of {task: {policy: mean}})."""
+    known: dict[str, Any] = json.loads(cache.read_text()) if cache.is_file() else {}
+    if task in known:
+        return {k: float(v) for k, v in known[task].items()}
+    if not compute:
+        return None
+    from sdhn_policy.deploy_eval import RWARE_EVAL_SEED
+    from sdhn_sim.envs.rware_baselines import POLICIES, evaluate_baseline
+
+    known[task] = {p: evaluate_baseline(task, p, episodes=RWARE_ABSOLUTE_EPISODES,
+                                        seed=RWARE_EVAL_SEED)["deliveries_mean"]
+                   for p in POLICIES}
+    cache.write_text(json.dumps(known, indent=1, sort_keys=True) + "\n")
+    return {k: float(v) for k, v in known[task].items()}
+
+
+def _cell(est: dict[str, ps.Estimate] | None, stat: str, runs: int, digits: int) -> str:
+    """A table cell: the estimate with its interval, the bare value for one run, or a dash."""
+    if est is None:
+        return "—"
+    e = est[stat]
+    return f"{e.point:.{digits}f}" if runs == 1 else e.fmt(digits)
+
+
+def _task_table(task: str, ms: dict[str, MethodData], reps: int
+                ) -> tuple[list[str], dict[str, Any]]:
+    """The task's markdown table rows and its protocol.json entry."""
+    dom = domain_of(task)
+    k = dom.digits
+    if dom is MAIF:
+        head = ("| method | seeds | steps | fixed IQM | fixed mean | held-out IQM | absolute IQM | "
+                "absolute mean | makespan / planner | P(SDHN > it) |")
+    else:
+        head = ("| method | seeds | steps | final IQM | final mean | absolute IQM | "
+                "absolute mean | P(SDHN > it) |")
+    md = [head, "|" + "---|" * (head.count("|") - 1)]
+    first = "fixed" if dom is MAIF else "final"  # the training-time evaluation's score
+    tjson: dict[str, Any] = {}
+    for m, d in ms.items():
+        est = {name: ps.interval_estimates({m: v}, reps)[m] for name, v in
+               ((first, d.train), ("heldout", d.heldout)) if v}
+        ab = d.absolute_scores()
+        if ab is not None:
+            est["absolute"] = ps.interval_estimates({m: ab}, reps)[m]
+        partner = sdhn_partner(m, ms)
+        poi = None if partner is None else ps.probability_of_improvement(
+            ms[partner].headline()[1], d.headline()[1], reps)
+        ratios = [r for r in d.ratio if r is not None]
+        tjson[m] = {"seeds": d.seeds, "steps": d.steps, first: d.train,
+                    "heldout": d.heldout, "absolute": d.absolute, "makespan_ratio": d.ratio,
+                    **{f"{name}_{s}": e[s].to_json() for name, e in est.items()
+                       for s in ("iqm", "mean")},
+                    "sdhn_partner": partner,
+                    "poi_sdhn_over": None if poi is None else poi.to_json()}
+
+        poi_s = "—" if poi is None else (poi.fmt() if partner == "sdhn" else
+                                         f"{poi.fmt()} ({label(partner or '')})")
+        n = len(d.seeds)
+        cells = [label(m), str(n), str(max(d.steps)), _cell(est.get(first), "iqm", n, k),
+                 _cell(est.get(first), "mean", n, k)]
+        if dom is MAIF:
+            cells.append(_cell(est.get("heldout"), "iqm", n, k))
+        cells += [_cell(est.get("absolute"), "iqm", n, k), _cell(est.get("absolute"), "mean", n, k)]
+        if dom is MAIF:
+            cells.append(f"{np.mean(ratios):.3f}" if ratios else "—")
+        md.append("| " + " | ".join([*cells, poi_s]) + " |")
+    return md, tjson
+
+
 def report(logdir: Path, outdir: Path, planner_cache: Path | None,
            compute_absolute: bool = True, reps: int = ps.REPS) -> list[Path]:
     runs = load_runs(logdir)
     tasks = collect(runs, planner_cache, compute_absolute)
     if not tasks:
-        raise FigureError(f"{logdir}: no finished MAIF run (DONE.json and a greedy evaluation)")
+        raise FigureError(f"{logdir}: no finished run with a greedy evaluation (DONE.json and "
+                          "eval/success_rate or eval/deliveries in metrics.csv)")
     outdir.mkdir(parents=True, exist_ok=True)
     pending = sorted(r.path.name for r in runs if not is_done(r))
     summary: dict[str, Any] = {"logdir": logdir.name, "unfinished_runs": pending, "tasks": {}}
     md = [f"# Protocol report: {logdir.name}", "",
-          "Final greedy success per method, IQM and mean over seeds with 95 % stratified "
-          "bootstrap intervals (rliable). *fixed*: the 100 fixed training-map instances; "
-          "*held-out*: the 100 held-out instances; *absolute*: the final actor on the "
-          "1,000-instance large held-out set (200 maps), with its makespan over the "
-          "planner's. Written by `scripts/protocol_report.py`.", ""]
+          "Final greedy score per method, IQM and mean over seeds with 95 % stratified "
+          "bootstrap intervals (rliable); one seed has no interval. P(SDHN > it): the "
+          "probability of improvement of the paired SDHN method (SDHN at the same settings, "
+          "named in brackets where it is a variant) on the absolute metric. Written by "
+          "`scripts/protocol_report.py`.", ""]
+    if any(domain_of(t) is MAIF for t in tasks):
+        md += ["MAIF: *fixed*: greedy success on the 100 fixed training-map instances; "
+               "*held-out*: on the 100 held-out instances; *absolute*: the final actor on the "
+               "1,000-instance large held-out set (200 maps), with its makespan over the "
+               "planner's.", ""]
+    if any(domain_of(t) is RWARE for t in tasks):
+        md += ["RWARE: requested shelves delivered per 500-step episode, greedy. *final*: the "
+               "last training-time evaluation; *absolute*: the final actor on "
+               f"{RWARE_ABSOLUTE_EPISODES} episodes no training drew (the seeds the shipped "
+               "cards use), with random and both scripted policies on the same episodes.", ""]
     if pending:
         md += [f"Unfinished runs, not counted: {', '.join(pending)}", ""]
+    refs_cache = outdir / "reference_policies.json"
     for task in sorted(tasks):
-        ms = tasks[task]
-        md += [f"## {task}", "", "| method | seeds | steps | fixed IQM | fixed mean | "
-               "held-out IQM | absolute IQM | absolute mean | makespan / planner | "
-               "P(SDHN > it) |", "|---|---|---|---|---|---|---|---|---|---|"]
-        tjson: dict[str, Any] = {}
-        for m, d in ms.items():
-            est = {k: ps.interval_estimates({m: v}, reps)[m] for k, v in
-                   (("fixed", d.train), ("heldout", d.heldout)) if v}
-            ab = d.absolute_scores()
-            if ab is not None:
-                est["absolute"] = ps.interval_estimates({m: ab}, reps)[m]
-            poi = None
-            if m != "sdhn" and "sdhn" in ms:
-                poi = ps.probability_of_improvement(ms["sdhn"].headline()[1], d.headline()[1],
-                                                    reps)
-            ratios = [r for r in d.ratio if r is not None]
-            tjson[m] = {"seeds": d.seeds, "steps": d.steps, "fixed": d.train,
-                        "heldout": d.heldout, "absolute": d.absolute, "makespan_ratio": d.ratio,
-                        **{f"{k}_{s}": e[s].to_json() for k, e in est.items()
-                           for s in ("iqm", "mean")},
-                        "poi_sdhn_over": None if poi is None else poi.to_json()}
-            ab_iqm = est["absolute"]["iqm"].fmt() if "absolute" in est else "—"
-            ab_mean = est["absolute"]["mean"].fmt() if "absolute" in est else "—"
-            md.append(f"| {label(m)} | {len(d.seeds)} | {max(d.steps)} | "
-                      f"{est['fixed']['iqm'].fmt()} | {est['fixed']['mean'].fmt()} | "
-                      f"{est['heldout']['iqm'].fmt()} | {ab_iqm} | {ab_mean} | "
-                      f"{f'{np.mean(ratios):.3f}' if ratios else '—'} | "
-                      f"{'—' if poi is None else poi.fmt()} |")
+        rows, tjson = _task_table(task, tasks[task], reps)
+        md += [f"## {task}", "", *rows, ""]
+        if domain_of(task) is RWARE:
+            refs = reference_policies(task, refs_cache, compute_absolute)
+            if refs is not None:
+                tjson["reference_policies"] = refs
+                md += ["Reference policies on the same episodes (deliveries per episode): " +
+                       ", ".join(f"{p} {v:.1f}" for p, v in refs.items()) + ".", ""]
         summary["tasks"][task] = tjson
-        md.append("")
     written = [outdir / "protocol.md", outdir / "protocol.json", outdir / "marl_eval.json",
                outdir / "claims.md"]
-    rows = claims_rows(tasks, reps)
+    claims = claims_rows(tasks, reps)
     md += ["Claims: claims.md. Curves: sample_efficiency.png.", ""]
     written[0].write_text("\n".join(md))
     written[1].write_text(json.dumps(summary, indent=1) + "\n")
     written[2].write_text(json.dumps(ps.marl_eval_json(marl_runs(tasks)), indent=1) + "\n")
-    written[3].write_text(claims_markdown(rows, f"suite logs {logdir.name}"))
+    written[3].write_text(claims_markdown(claims, f"suite logs {logdir.name}"))
     fig = sample_efficiency_figure(tasks, outdir / "sample_efficiency.png", reps)
     return written + ([fig] if fig else [])
 
@@ -276,19 +446,15 @@ def report(logdir: Path, outdir: Path, planner_cache: Path | None,
 def marl_runs(tasks: dict[str, dict[str, MethodData]]) -> list[dict[str, Any]]:
     out = []
     for task, ms in tasks.items():
+        dom = domain_of(task)
         for m, d in ms.items():
             for i, r in enumerate(d.runs):
-                s = r.series.get(SUCCESS_TAGS["train"])
-                steps = [] if s is None else [(int(k), {"success_rate": [float(v)]})
+                s = r.series.get(dom.tag)
+                steps = [] if s is None else [(int(k), {dom.metric: [float(v)]})
                                               for k, v in zip(s[0], s[1], strict=True)]
-                ab = None
-                cache = r.path / ABSOLUTE_FILE
-                if cache.is_file():
-                    recs = json.loads(cache.read_text())["records"]
-                    ab = {"success_rate": [float(x["success"]) for x in recs],
-                          "episode_length": [float(x["length"]) for x in recs]}
-                out.append({"env": "MAIF", "task": task, "algorithm": m,
-                            "run": str(d.seeds[i]), "steps": steps, "absolute": ab})
+                out.append({"env": dom.env, "task": task, "algorithm": m,
+                            "run": str(d.seeds[i]), "steps": steps,
+                            "absolute": absolute_records(r)})
     return out
 
 
@@ -316,10 +482,12 @@ def sample_efficiency_figure(tasks: dict[str, dict[str, MethodData]], out: Path,
             point, lo, hi = ps.curve_estimates({m: vals}, reps)[m]
             ax.plot(steps, point, label=f"{label(m)} ({vals.shape[0]})")
             ax.fill_between(steps, lo, hi, alpha=0.2)
-        ax.set_title(f"{task}: greedy success (100 fixed instances)")
+        dom = domain_of(task)
+        ax.set_title(f"{task}: {dom.unit}", fontsize=9)
         ax.set_xlabel("team env-steps")
         ax.set_ylabel("IQM over seeds, 95 % CI")
-        ax.set_ylim(0, 1.02)
+        if dom is MAIF:
+            ax.set_ylim(0, 1.02)
         ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out, dpi=110)

@@ -154,3 +154,17 @@ def test_pairs_and_labels() -> None:
     assert sdhn_partner("sdhn", methods) is None
     assert label("mappo_ff_ent01") == "MAPPO (ff_ent01)"
     assert label("sdhn_wo_lsk") == "SDHN w/o L_Sk"
+
+
+def test_too_few_seeds_give_no_verdict(tmp_path: Path) -> None:
+    """One seed against one: SDHN scores below MAPPO, but a single pair is no evidence, so the
+    claim stays inconclusive however far apart the two runs are."""
+    logdir, out = tmp_path / "logs", tmp_path / "out"
+    _run(logdir, "sdhn", "sdhn", 1, final=0.5, ratio=1.2)
+    _run(logdir, "mappo", "mappo", 1, final=0.9, ratio=1.0)
+    report(logdir, out, None, compute_absolute=False, reps=200)
+    claims = (out / "claims.md").read_text()
+    rows = [x for x in claims.splitlines() if x.startswith("| SDHN")]
+    assert len(rows) == 2 and all(r.endswith("| inconclusive: 1 seed (a verdict needs 3) |")
+                                  for r in rows)
+    assert "| 0.00 (1 vs 1 seed) |" in (out / "protocol.md").read_text()

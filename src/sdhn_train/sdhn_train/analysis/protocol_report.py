@@ -54,6 +54,9 @@ LABELS = {"sdhn": "SDHN", "mappo": "MAPPO", "qmix": "QMIX", "dicg": "DICG",
           "sdhn_generator_1_layer": "SDHN, 1-layer generator"}
 BASELINES = ("mappo", "qmix", "dicg", "hgcn_mix")
 ABLATIONS = ("sdhn_wo_lsk", "sdhn_wo_shr")
+MIN_VERDICT_SEEDS = 3
+"""Fewest runs per method a verdict rests on: with fewer, a bootstrap over seeds has (almost) no
+spread to draw, and one seed against one would 'reproduce' or 'contradict' on a coin toss."""
 
 
 @dataclass(frozen=True)
@@ -243,6 +246,14 @@ def sdhn_partner(method: str, methods: Any) -> str | None:
     return partner if partner in methods else None
 
 
+def too_few(*seeds: int) -> str | None:
+    """The verdict when a side has fewer than MIN_VERDICT_SEEDS runs, else None."""
+    n = min(seeds)
+    if n >= MIN_VERDICT_SEEDS:
+        return None
+    return f"inconclusive: {n} seed{'s' if n != 1 else ''} (a verdict needs {MIN_VERDICT_SEEDS})"
+
+
 def verdict(est: ps.Estimate, better_above: float) -> str:
     """'reproduced' when the interval lies above ``better_above``, 'contradicted' below it."""
     if est.low > better_above:
@@ -274,10 +285,12 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
             else:
                 claim = f"{label(base)} is worse than SDHN on {task} (ablation)"
             rows.append({"claim": claim,
-                         "measurement": f"P({label(sdhn)} > {label(base)}) = {poi.fmt()} "
+                         "measurement": f"P({label(sdhn)} > {label(base)}) = "
+                                        f"{_est(poi, len(sd_scores), len(b_scores))} "
                                         f"({which} {dom.metric}, {len(sd_scores)} vs "
                                         f"{len(b_scores)} seeds)",
-                         "budget": budget, "verdict": verdict(poi, 0.5)})
+                         "budget": budget,
+                         "verdict": too_few(len(sd_scores), len(b_scores)) or verdict(poi, 0.5)})
         if dom is MAIF and "sdhn" in ms and "mappo" in ms:
             sd = ms["sdhn"]
             budget = f"{max(sd.steps) / 1e6:g}M × {len(sd.seeds)} seeds"
@@ -285,12 +298,14 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
             mm = [r for r in ms["mappo"].ratio if r is not None]
             if len(sm) == len(sd.ratio) and len(mm) == len(ms["mappo"].ratio) and sm and mm:
                 ratio = ps.ratio_of_means(sm, mm, reps)
-                v = ("reproduced" if ratio.high <= PAPER_MAKESPAN_RATIO else
-                     "contradicted" if ratio.low > PAPER_MAKESPAN_RATIO else
-                     "inconclusive at this budget")
+                v = too_few(len(sm), len(mm)) or (
+                    "reproduced" if ratio.high <= PAPER_MAKESPAN_RATIO else
+                    "contradicted" if ratio.low > PAPER_MAKESPAN_RATIO else
+                    "inconclusive at this budget")
                 rows.append({"claim": f"SDHN's makespan is 23 % below MAPPO's on {task}",
                              "measurement": f"SDHN / MAPPO makespan (each over the planner's, "
-                                            f"large held-out set) = {ratio.fmt(3)}",
+                                            f"large held-out set) = "
+                                            f"{_est(ratio, len(sm), len(mm), digits=3)}",
                              "budget": budget, "verdict": v})
         if task in ("maif-16", "maif-20"):
             for base in ("qmix", "mappo"):
@@ -298,8 +313,9 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
                     continue
                 w, scores = ms[base].headline()
                 est = ps.interval_estimates({base: scores}, reps)[base]["mean"]
-                v = ("reproduced" if est.high < 0.5 else "contradicted" if est.low >= 0.5 else
-                     "inconclusive at this budget")
+                v = too_few(len(scores)) or (
+                    "reproduced" if est.high < 0.5 else "contradicted" if est.low >= 0.5 else
+                    "inconclusive at this budget")
                 b = ms[base]
                 rows.append({"claim": f"{label(base)} fails on {task} (success below 0.5)",
                              "measurement": f"{label(base)} mean {w} success {est.fmt()}",
@@ -313,7 +329,9 @@ def claims_markdown(rows: list[dict[str, str]], source: str) -> str:
              f"Budget: ours per run against the paper's ({PAPER_BUDGET} team-steps per run). "
              "A claim of superiority is **reproduced** when the 95 % interval of the probability "
              "of improvement lies above 0.5, **contradicted** when it lies below, else "
-             "**inconclusive at this budget**. Written by `scripts/protocol_report.py`.", "",
+             "**inconclusive at this budget**; with fewer than "
+             f"{MIN_VERDICT_SEEDS} seeds on a side there is no verdict. Written by "
+             "`scripts/protocol_report.py`.", "",
              "| claim | our measurement [95 % CI] | budget (paper: "
              f"{PAPER_BUDGET}) | verdict |", "|---|---|---|---|"]
     lines += [f"| {r['claim']} | {r['measurement']} | {r['budget']} | {r['verdict']} |"
@@ -337,6 +355,11 @@ def reference_policies(task: str, cache: Path, compute: bool) -> dict[str, float
                    for p in POLICIES}
     cache.write_text(json.dumps(known, indent=1, sort_keys=True) + "\n")
     return {k: float(v) for k, v in known[task].items()}
+
+
+def _est(e: ps.Estimate, *runs: int, digits: int = 2) -> str:
+    """The estimate with its interval, or the bare value when every side has one run."""
+    return f"{e.point:.{digits}f}" if max(runs) == 1 else e.fmt(digits)
 
 
 def _cell(est: dict[str, ps.Estimate] | None, stat: str, runs: int, digits: int) -> str:
@@ -378,8 +401,12 @@ def _task_table(task: str, ms: dict[str, MethodData], reps: int
                     "sdhn_partner": partner,
                     "poi_sdhn_over": None if poi is None else poi.to_json()}
 
-        poi_s = "—" if poi is None else (poi.fmt() if partner == "sdhn" else
-                                         f"{poi.fmt()} ({label(partner or '')})")
+        poi_s = "—"
+        if poi is not None and partner is not None:
+            one = len(ms[partner].seeds) == 1 and len(d.seeds) == 1  # no interval to draw
+            poi_s = f"{poi.point:.2f} (1 vs 1 seed)" if one else poi.fmt()
+            if partner != "sdhn":
+                poi_s += f" ({label(partner)})"
         n = len(d.seeds)
         cells = [label(m), str(n), str(max(d.steps)), _cell(est.get(first), "iqm", n, k),
                  _cell(est.get(first), "mean", n, k)]

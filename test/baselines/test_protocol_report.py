@@ -35,7 +35,10 @@ def _run(logdir: Path, method: str, algo: str, seed: int, *, final: float, ratio
              None, "length": 60 if i < n_ok else 500, "wedged": 0, "deadlock": False}
             for i in range(10)]
     (d / "heldout_large.json").write_text(json.dumps(
-        {"summary": {"success_rate": final, "makespan_ratio_mean": ratio}, "records": recs}))
+        {"summary": {"success_rate": final, "makespan_ratio_mean": ratio,
+                     "maps_with_zero_success": 0 if final > 0.5 else 1,
+                     "failures": {"episodes": 10 - n_ok, "deadlock": 10 - n_ok, "wander": 0}},
+         "records": recs}))
     if done:
         (d / "DONE.json").write_text("{}")
 
@@ -58,6 +61,10 @@ def test_report_verdicts_on_known_data(tmp_path: Path) -> None:
     assert "0.700" in line and line.endswith("| reproduced |")
     proto = json.loads((out / "protocol.json").read_text())
     assert proto["unfinished_runs"] == ["maif-10__qmix__s1"]
+    # MAPPO's seeds complete round(10 * final) of 10: 5, 5, 5, 5 and 6, so 4.8 deadlocks
+    mappo_row = next(x for x in (out / "protocol.md").read_text().splitlines()
+                     if x.startswith("| MAPPO |"))
+    assert "| 4.8, 0 | 0 |" in mappo_row
     one = proto["tasks"]["maif-10"]["sdhn_generator_1_layer"]["poi_sdhn_over"]
     assert one["point"] == 0.5 and one["ci95_low"] < 0.5 < one["ci95_high"]
     me = json.loads((out / "marl_eval.json").read_text())

@@ -97,6 +97,7 @@ class MethodData:
     heldout: list[float] = field(default_factory=list)  # MAIF only
     absolute: list[float | None] = field(default_factory=list)
     ratio: list[float | None] = field(default_factory=list)  # makespan / planner's, large set
+    failures: list[dict[str, Any] | None] = field(default_factory=list)  # large set (MAIF)
     steps: list[int] = field(default_factory=list)  # team-steps each run trained
     runs: list[Run] = field(default_factory=list)
 
@@ -201,6 +202,10 @@ def collect(runs: list[Run], planner_cache: Path | None,
         ab = absolute_metric(r, planner_cache, compute_absolute)
         d.absolute.append(None if ab is None else float(ab["summary"][dom.absolute_key]))
         d.ratio.append(None if ab is None else ab["summary"].get("makespan_ratio_mean"))
+        d.failures.append(None if ab is None or dom is not MAIF else
+                          {"deadlock": ab["summary"]["failures"]["deadlock"],
+                           "wander": ab["summary"]["failures"]["wander"],
+                           "maps_with_zero_success": ab["summary"]["maps_with_zero_success"]})
     return out
 
 
@@ -377,7 +382,8 @@ def _task_table(task: str, ms: dict[str, MethodData], reps: int
     k = dom.digits
     if dom is MAIF:
         head = ("| method | seeds | steps | fixed IQM | fixed mean | held-out IQM | absolute IQM | "
-                "absolute mean | makespan / planner | P(SDHN > it) |")
+                "absolute mean | makespan / planner | deadlocks, wanders | maps at 0 | "
+                "P(SDHN > it) |")
     else:
         head = ("| method | seeds | steps | final IQM | final mean | absolute IQM | "
                 "absolute mean | P(SDHN > it) |")
@@ -396,6 +402,7 @@ def _task_table(task: str, ms: dict[str, MethodData], reps: int
         ratios = [r for r in d.ratio if r is not None]
         tjson[m] = {"seeds": d.seeds, "steps": d.steps, first: d.train,
                     "heldout": d.heldout, "absolute": d.absolute, "makespan_ratio": d.ratio,
+                    "failures": d.failures,
                     **{f"{name}_{s}": e[s].to_json() for name, e in est.items()
                        for s in ("iqm", "mean")},
                     "sdhn_partner": partner,
@@ -415,6 +422,11 @@ def _task_table(task: str, ms: dict[str, MethodData], reps: int
         cells += [_cell(est.get("absolute"), "iqm", n, k), _cell(est.get("absolute"), "mean", n, k)]
         if dom is MAIF:
             cells.append(f"{np.mean(ratios):.3f}" if ratios else "—")
+            fails = [f for f in d.failures if f is not None]
+            cells += ([f"{np.mean([f['deadlock'] for f in fails]):g}, "
+                       f"{np.mean([f['wander'] for f in fails]):g}",
+                       f"{np.mean([f['maps_with_zero_success'] for f in fails]):g}"]
+                      if fails else ["—", "—"])
         md.append("| " + " | ".join([*cells, poi_s]) + " |")
     return md, tjson
 
@@ -439,7 +451,9 @@ def report(logdir: Path, outdir: Path, planner_cache: Path | None,
         md += ["MAIF: *fixed*: greedy success on the 100 fixed training-map instances; "
                "*held-out*: on the 100 held-out instances; *absolute*: the final actor on the "
                "1,000-instance large held-out set (200 maps), with its makespan over the "
-               "planner's.", ""]
+               "planner's, its failed episodes split into deadlocks (timed out with a robot "
+               "wedged off its goal) and wanders, and its maps with no formation completed "
+               "(means over seeds).", ""]
     if any(domain_of(t) is RWARE for t in tasks):
         md += ["RWARE: requested shelves delivered per 500-step episode, greedy. *final*: the "
                "last training-time evaluation; *absolute*: the final actor on "

@@ -71,13 +71,25 @@ class Domain:
     absolute_key: str  # its summary's headline number
     digits: int  # decimals in the tables
     unit: str  # what the number counts, for the figure
+    legend: str  # what the report's columns mean for this family
 
 
-MAIF = Domain("MAIF", "success_rate", "eval/success_rate", "eval/heldout_success_rate",
-              "heldout_large.json", "success_rate", 2, "greedy success (100 fixed instances)")
-RWARE = Domain("RWARE", "deliveries", "eval/deliveries", None, "absolute_deliveries.json",
-               "deliveries_mean", 1, "greedy deliveries per episode")
 RWARE_ABSOLUTE_EPISODES = 100
+MAIF = Domain(
+    "MAIF", "success_rate", "eval/success_rate", "eval/heldout_success_rate",
+    "heldout_large.json", "success_rate", 2, "greedy success (100 fixed instances)",
+    "MAIF: *fixed*: greedy success on the 100 fixed training-map instances; *held-out*: on the "
+    "100 held-out instances; *absolute*: the final actor on the 1,000-instance large held-out "
+    "set (200 maps), with its makespan over the planner's, its failed episodes split into "
+    "deadlocks (timed out with a robot wedged off its goal) and wanders, and its maps with no "
+    "formation completed (means over seeds).")
+RWARE = Domain(
+    "RWARE", "deliveries", "eval/deliveries", None, "absolute_deliveries.json",
+    "deliveries_mean", 1, "greedy deliveries per episode",
+    "RWARE: requested shelves delivered per 500-step episode, greedy. *final*: the last "
+    f"training-time evaluation; *absolute*: the final actor on {RWARE_ABSOLUTE_EPISODES} "
+    "episodes no training drew (the seeds the shipped cards use), with random and both "
+    "scripted policies on the same episodes.")
 
 
 def domain_of(task: str) -> Domain:
@@ -447,18 +459,9 @@ def report(logdir: Path, outdir: Path, planner_cache: Path | None,
           "probability of improvement of the paired SDHN method (SDHN at the same settings, "
           "named in brackets where it is a variant) on the absolute metric. Written by "
           "`scripts/protocol_report.py`.", ""]
-    if any(domain_of(t) is MAIF for t in tasks):
-        md += ["MAIF: *fixed*: greedy success on the 100 fixed training-map instances; "
-               "*held-out*: on the 100 held-out instances; *absolute*: the final actor on the "
-               "1,000-instance large held-out set (200 maps), with its makespan over the "
-               "planner's, its failed episodes split into deadlocks (timed out with a robot "
-               "wedged off its goal) and wanders, and its maps with no formation completed "
-               "(means over seeds).", ""]
-    if any(domain_of(t) is RWARE for t in tasks):
-        md += ["RWARE: requested shelves delivered per 500-step episode, greedy. *final*: the "
-               "last training-time evaluation; *absolute*: the final actor on "
-               f"{RWARE_ABSOLUTE_EPISODES} episodes no training drew (the seeds the shipped "
-               "cards use), with random and both scripted policies on the same episodes.", ""]
+    for dom in (MAIF, RWARE):
+        if any(domain_of(t) is dom for t in tasks):
+            md += [dom.legend, ""]
     if pending:
         md += [f"Unfinished runs, not counted: {', '.join(pending)}", ""]
     refs_cache = outdir / "reference_policies.json"

@@ -68,7 +68,8 @@ class ActorConfig:
                               "EPyMARL's use_rnn: false)")
     use_robot_id: bool = opt(False, "append a one-hot robot id to each local observation")
     init_from: str | None = opt(None, "start from this exported actor (.safetensors), e.g. one "
-                                      "trained on maif-solo or a smaller team (warm start)")
+                                      "trained on maif-solo or a smaller team (warm start; a "
+                                      "new robot id starts as the mean of the trained ids)")
 
 
 @dataclass

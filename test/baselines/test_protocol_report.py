@@ -64,7 +64,7 @@ def test_report_verdicts_on_known_data(tmp_path: Path) -> None:
     # MAPPO's seeds complete round(10 * final) of 10: 5, 5, 5, 5 and 6, so 4.8 deadlocks
     mappo_row = next(x for x in (out / "protocol.md").read_text().splitlines()
                      if x.startswith("| MAPPO |"))
-    assert "| 4.8, 0 | 0 |" in mappo_row
+    assert "| 4.8, 0.0 | 0.0 |" in mappo_row
     one = proto["tasks"]["maif-10"]["sdhn_generator_1_layer"]["poi_sdhn_over"]
     assert one["point"] == 0.5 and one["ci95_low"] < 0.5 < one["ci95_high"]
     me = json.loads((out / "marl_eval.json").read_text())

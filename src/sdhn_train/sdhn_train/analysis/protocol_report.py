@@ -435,9 +435,9 @@ def _task_table(task: str, ms: dict[str, MethodData], reps: int
         if dom is MAIF:
             cells.append(f"{np.mean(ratios):.3f}" if ratios else "—")
             fails = [f for f in d.failures if f is not None]
-            cells += ([f"{np.mean([f['deadlock'] for f in fails]):g}, "
-                       f"{np.mean([f['wander'] for f in fails]):g}",
-                       f"{np.mean([f['maps_with_zero_success'] for f in fails]):g}"]
+            cells += ([f"{np.mean([f['deadlock'] for f in fails]):.1f}, "
+                       f"{np.mean([f['wander'] for f in fails]):.1f}",
+                       f"{np.mean([f['maps_with_zero_success'] for f in fails]):.1f}"]
                       if fails else ["—", "—"])
         md.append("| " + " | ".join([*cells, poi_s]) + " |")
     return md, tjson

@@ -49,19 +49,16 @@ def load_actor_into(actor: Actor, path: str | os.PathLike[str]) -> int:
 
 
 def input_weight_name(actor: Actor) -> str:
-    """The tensor (``ActorSpec.tensor_shapes`` name) whose columns are the actor's inputs."""
-    spec = actor.spec
-    return ("encoder.0.weight" if spec.hidden_sizes else
-            "gru.weight_ih" if spec.gru_hidden > 0 else "head.weight")
+    """The tensor whose columns are the actor's inputs: the first of ``ActorSpec.tensor_shapes``
+    (encoder, else GRU, else head, in the order the input flows through them)."""
+    return next(iter(actor.spec.tensor_shapes()))
 
 
 def resize_robot_ids(weight: npt.NDArray[np.float32], features: int,
                      num_robots: int) -> npt.NDArray[np.float32]:
     """[out, features + n] -> [out, features + num_robots]: observation columns unchanged, the
     first min(n, num_robots) id columns kept, new ones the mean of the trained ids'."""
-    obs_part, ids = weight[:, :features], weight[:, features:]
-    if ids.shape[1] == 0:
-        raise ConfigError("actor.init_from: the trained actor has no robot-id inputs to resize")
+    obs_part, ids = weight[:, :features], weight[:, features:]  # ids: >= 1 (ActorSpec.check)
     keep = ids[:, :num_robots]
     extra = np.repeat(ids.mean(axis=1, keepdims=True), num_robots - keep.shape[1], axis=1)
     return np.ascontiguousarray(np.concatenate([obs_part, keep, extra], axis=1),

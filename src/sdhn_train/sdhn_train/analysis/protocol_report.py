@@ -280,6 +280,11 @@ def verdict(est: ps.Estimate, better_above: float) -> str:
     return "inconclusive at this budget"
 
 
+def _budget(d: MethodData) -> str:
+    """A method's budget as the claims table states it: steps per run × seeds."""
+    return f"{max(d.steps) / 1e6:g}M × {len(d.seeds)} seeds"
+
+
 def claims_rows(tasks: dict[str, dict[str, MethodData]],
                 reps: int = ps.REPS) -> list[dict[str, str]]:
     rows = []
@@ -293,7 +298,7 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
                 continue
             sd = ms[sdhn]
             which, sd_scores = sd.headline()
-            budget = f"{max(sd.steps) / 1e6:g}M × {len(sd.seeds)} seeds"
+            budget = _budget(sd)
             _, b_scores = ms[base].headline()
             poi = ps.probability_of_improvement(sd_scores, b_scores, reps)
             if split is not None:
@@ -310,7 +315,7 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
                          "verdict": too_few(len(sd_scores), len(b_scores)) or verdict(poi, 0.5)})
         if dom is MAIF and "sdhn" in ms and "mappo" in ms:
             sd = ms["sdhn"]
-            budget = f"{max(sd.steps) / 1e6:g}M × {len(sd.seeds)} seeds"
+            budget = _budget(sd)
             sm = [r for r in sd.ratio if r is not None]
             mm = [r for r in ms["mappo"].ratio if r is not None]
             if len(sm) == len(sd.ratio) and len(mm) == len(ms["mappo"].ratio) and sm and mm:
@@ -333,10 +338,9 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
                 v = too_few(len(scores)) or (
                     "reproduced" if est.high < 0.5 else "contradicted" if est.low >= 0.5 else
                     "inconclusive at this budget")
-                b = ms[base]
                 rows.append({"claim": f"{label(base)} fails on {task} (success below 0.5)",
                              "measurement": f"{label(base)} mean {w} success {est.fmt()}",
-                             "budget": f"{max(b.steps) / 1e6:g}M × {len(b.seeds)} seeds",
+                             "budget": _budget(ms[base]),
                              "verdict": v})
     return rows
 
@@ -381,10 +385,7 @@ def _est(e: ps.Estimate, *runs: int, digits: int = 2) -> str:
 
 def _cell(est: dict[str, ps.Estimate] | None, stat: str, runs: int, digits: int) -> str:
     """A table cell: the estimate with its interval, the bare value for one run, or a dash."""
-    if est is None:
-        return "—"
-    e = est[stat]
-    return f"{e.point:.{digits}f}" if runs == 1 else e.fmt(digits)
+    return "—" if est is None else _est(est[stat], runs, digits=digits)
 
 
 def _task_table(task: str, ms: dict[str, MethodData], reps: int
@@ -422,8 +423,8 @@ def _task_table(task: str, ms: dict[str, MethodData], reps: int
 
         poi_s = "—"
         if poi is not None and partner is not None:
-            one = len(ms[partner].seeds) == 1 and len(d.seeds) == 1  # no interval to draw
-            poi_s = f"{poi.point:.2f} (1 vs 1 seed)" if one else poi.fmt()
+            sides = (len(ms[partner].seeds), len(d.seeds))
+            poi_s = _est(poi, *sides) + (" (1 vs 1 seed)" if max(sides) == 1 else "")
             if partner != "sdhn":
                 poi_s += f" ({label(partner)})"
         n = len(d.seeds)

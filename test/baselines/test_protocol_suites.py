@@ -59,3 +59,18 @@ def test_run_experiments_methods_filter(tmp_path: Path, capsys: pytest.CaptureFi
     assert len(listed) == 20 and all("__sdhn__" in n or "__mappo__" in n for n in listed)
     assert run_experiments([suite, "--list", "--methods", "nope"]) == 2
     assert "--methods" in capsys.readouterr().err
+
+
+def test_run_experiments_seeds_and_runs_filters(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    suite = str(SUITES / "rware.yaml")
+    common = [suite, "--budget", "long", "--logdir", str(tmp_path), "--list"]
+    assert run_experiments([*common, "--methods", "mappo_ent01_warm", "--seeds", "3"]) == 0
+    assert capsys.readouterr().out.split()[1::2] == ["rware-3__mappo_ent01_warm__s3"]
+    wanted = ["rware-3__sdhn_ent01_warm__s2", "rware-3__mappo_ent01_warm__s3"]
+    assert run_experiments([*common, "--runs", *wanted]) == 0
+    assert capsys.readouterr().out.split()[1::2] == wanted  # in the order given
+    assert run_experiments([*common, "--seeds", "7"]) == 2
+    assert "--seeds: [7]" in capsys.readouterr().err
+    assert run_experiments([*common, "--runs", "rware-3__sdhn__s9"]) == 2
+    assert "--runs" in capsys.readouterr().err

@@ -12,6 +12,7 @@ from typing import Any
 from sdhn_train.analysis import experiments
 from sdhn_train.analysis.experiments import (
     ExperimentError,
+    RunSpec,
     check_jobs,
     check_runs,
     load_suite,
@@ -19,6 +20,28 @@ from sdhn_train.analysis.experiments import (
     run_suite,
 )
 from sdhn_train.config import ConfigError
+
+
+def select_runs(runs: list[RunSpec], methods: list[str] | None, seeds: list[int] | None,
+                names: list[str] | None) -> list[RunSpec]:
+    """The runs the filters keep, in the suite's order, or in the order of ``names`` when given;
+    a filter value the suite does not have is an error (a typo must not run nothing)."""
+    def check(flag: str, wanted: list[Any], known: set[Any]) -> None:
+        unknown = [w for w in wanted if w not in known]
+        if unknown:
+            raise ExperimentError(f"{flag}: {unknown} not in the suite; allowed: {sorted(known)}")
+
+    if methods:
+        check("--methods", methods, {r.method for r in runs})
+        runs = [r for r in runs if r.method in methods]
+    if seeds:
+        check("--seeds", seeds, {r.seed for r in runs})
+        runs = [r for r in runs if r.seed in seeds]
+    if names:
+        by_name = {r.name: r for r in runs}
+        check("--runs", names, set(by_name))
+        runs = [by_name[n] for n in dict.fromkeys(names)]
+    return runs
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,6 +64,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--list", action="store_true", help="print the runs and their state, run none")
     p.add_argument("--methods", nargs="+", default=None,
                    help="run only these methods of the suite (e.g. sdhn mappo first)")
+    p.add_argument("--seeds", nargs="+", type=int, default=None,
+                   help="run only these seeds of the suite (e.g. 3 to add a seed)")
+    p.add_argument("--runs", nargs="+", default=None,
+                   help="run only these runs, by name (TASK__METHOD__sSEED, as --list prints), "
+                        "in the order given: which runs the cores take first")
     args = p.parse_args(argv)
 
     def _terminated(signum: int, frame: Any) -> None:
@@ -48,13 +76,8 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, _terminated)
     try:
-        runs = load_suite(args.suite, args.budget)
-        if args.methods:
-            known = sorted({r.method for r in runs})
-            unknown = [m for m in args.methods if m not in known]
-            if unknown:
-                raise ExperimentError(f"--methods: {unknown} not in the suite; allowed: {known}")
-            runs = [r for r in runs if r.method in args.methods]
+        runs = select_runs(load_suite(args.suite, args.budget), args.methods, args.seeds,
+                           args.runs)
         check_runs(runs)
         check_jobs(args.jobs)
         if args.num_cpus is not None and args.num_cpus < 1:

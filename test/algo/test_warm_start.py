@@ -13,9 +13,10 @@ import torch
 
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.actor_torch import Actor
+from sdhn_policy.team_size import input_tensor_name
 from sdhn_policy.weights import ActorSpec, save_actor_file
 from sdhn_train.config import ConfigError
-from sdhn_train.warm_start import input_weight_name, load_actor_into
+from sdhn_train.warm_start import load_actor_into
 
 SPECS = [
     ActorSpec(obs_size=9, num_actions=5, hidden_sizes=(16,), gru_hidden=8, use_robot_id=True,
@@ -48,7 +49,7 @@ def test_two_robot_actor_warm_starts_a_three_robot_team(spec: ActorSpec, tmp_pat
     logits_src = src.step(obs, src.initial_state(2), robot_id=ids)[0]
     logits_big = rt.step(obs, rt.initial_state(2), robot_id=ids)[0]
     np.testing.assert_allclose(logits_big, logits_src, rtol=1e-5, atol=1e-6)
-    w = big.tensors()[input_weight_name(big)].detach().numpy()
+    w = big.tensors()[input_tensor_name(big.spec)].detach().numpy()
     np.testing.assert_allclose(w[:, 11], w[:, 9:11].mean(axis=1), rtol=1e-6, atol=1e-7)
 
 

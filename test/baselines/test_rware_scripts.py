@@ -64,3 +64,23 @@ def test_plot_curves_draws_baselines(tmp_path):
             plot_curves.parse_hline(bad)
     with pytest.raises(SystemExit):
         plot_curves.main([str(run), "--tags", "eval/episodic_return", "--titles", "a", "b"])
+
+
+def test_eval_rware_policy_plays_its_own_and_a_larger_team(capsys):
+    """The shipped rware-3 actor on its own team and zero-shot on rware-6 (ids widened): both
+    deliver (a broken id widening or runtime gives 0), and the rows say which is zero-shot."""
+    evaluate = _script("eval_rware_policy")
+    assert evaluate.main([str(REPO / "models/rware-3-mappo"), "rware-3", "rware-6",
+                          "--episodes", "2", "--json"]) == 0
+    rows = {r["task"]: r for r in map(json.loads, capsys.readouterr().out.splitlines())}
+    assert rows["rware-3"]["trained_robots"] == rows["rware-6"]["trained_robots"] == 3, rows
+    assert rows["rware-6"]["robots"] == 6 and rows["rware-6"]["episodes"] == 2, rows
+    assert rows["rware-3"]["deliveries_mean"] >= 5 and rows["rware-6"]["deliveries_mean"] >= 5
+
+
+def test_eval_rware_policy_refuses_a_maif_actor_and_a_missing_file(capsys, tmp_path):
+    evaluate = _script("eval_rware_policy")
+    assert evaluate.main([str(REPO / "models/maif-10-sdhn"), "rware-3"]) == 2
+    assert "57-float" in capsys.readouterr().err
+    assert evaluate.main([str(tmp_path / "none"), "rware-3"]) == 2
+    assert "no such actor file" in capsys.readouterr().err

@@ -1,9 +1,13 @@
 #!/usr/bin/env python3
 """Add the large held-out set to a shipped MAIF model's card: greedy play and, with
-``--temperature T``, sampled play at T (the mode its launch config deploys), on the 1,000
-instances on 200 maps no training run sees.
+``--temperature T``, sampled play at T, with ``--break-stalls`` greedy play with stall breaking
+(``sdhn_policy.stall_breaker``), on the 1,000 instances on 200 maps no training run sees; the
+card recommends the mode its launch config deploys (``--deploy``; default: the last one
+evaluated of greedy, sampled, break-stalls).
 
-    .venv/bin/python scripts/card_heldout_large.py models/maif-20-sdhn --temperature 0.25
+    .venv/bin/python scripts/card_heldout_large.py models/maif-10-sdhn --break-stalls
+    .venv/bin/python scripts/card_heldout_large.py models/maif-20-sdhn --temperature 0.25 \
+        --break-stalls --deploy sampled
 
 Writes ``card.json["heldout_large"]`` and a section of ``card.md`` (replacing an earlier one of
 the same title; the rest of the card, written by ``ship_model.py``, is kept), each file written
@@ -24,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.stall_breaker import StallRule
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_train.analysis.heldout_eval import (
     default_planner_cache,
@@ -38,8 +43,12 @@ SET = "heldout_large"
 TITLE = "## Large held-out set"
 
 
+DEPLOY_MODES = ("greedy", "sampled", "break-stalls")
+
+
 def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
-             seed: int = 0) -> dict[str, Any]:
+             seed: int = 0, *, break_stalls: bool = False, deploy: str | None = None
+             ) -> dict[str, Any]:
     """card.json's ``heldout_large`` entry for the model directory ``model``."""
     card = json.loads((model / "card.json").read_text())
     task = str(card["env"])
@@ -54,19 +63,31 @@ def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
     inst = set_instances(task, SET)
     plan = None if planner_cache is None else planner_makespans(task, SET, planner_cache,
                                                                 progress=True)
+    runs: list[tuple[str, dict[str, Any]]] = [("greedy", {})]
+    if temperature is not None:
+        runs.append((f"sampled at T={temperature:g}",
+                     {"sample": True, "temperature": temperature}))
+    if break_stalls:
+        runs.append((f"greedy, stall breaking {StallRule().text()}", {"stall": StallRule()}))
+    deploy = deploy or ("break-stalls" if break_stalls else
+                        "sampled" if temperature is not None else "greedy")
+    if (deploy == "sampled" and temperature is None) or (deploy == "break-stalls"
+                                                          and not break_stalls):
+        raise ValueError(f"--deploy {deploy}: that mode is not evaluated (add --temperature or "
+                         "--break-stalls)")
     modes: dict[str, Any] = {}
-    for t in (None, *([] if temperature is None else [temperature])):
-        recs = evaluate_set(rt, task, SET, sample=t is not None, seed=seed,
-                            temperature=1.0 if t is None else t)
+    for name, how in runs:
+        recs = evaluate_set(rt, task, SET, seed=seed, **how)
         s = summarise(recs, plan, inst.num_formations)
-        name = "greedy" if t is None else f"sampled at T={t:g}"
         modes[name] = {k: s.get(k) for k in (
             "success_rate", "success_ci95_maps", "maps_with_zero_success", "failures",
             "makespan_ratio_mean", "makespan_ratio_p90")}
         print(f"[card] {model.name} {name}: success {s['success_rate']:.3f}", flush=True)
     return {"set": SET, "set_checksum": set_checksum(inst), "instances": inst.num_instances,
             "maps": inst.num_instances // inst.num_formations, "seed": seed, "modes": modes,
-            "deploy": {"greedy": temperature is None, "temperature": temperature or 1.0}}
+            "deploy": {"greedy": deploy != "sampled",
+                       "temperature": temperature if deploy == "sampled" else 1.0,
+                       "break_stalls": deploy == "break-stalls"}}
 
 
 def section(entry: dict[str, Any]) -> str:
@@ -81,7 +102,8 @@ def section(entry: dict[str, Any]) -> str:
                     f"{m['maps_with_zero_success']} | {f['deadlock']} / {f['wander']} | "
                     f"{ratio(m['makespan_ratio_mean'])}, {ratio(m['makespan_ratio_p90'])} |")
     d = entry["deploy"]
-    how = ("greedy" if d["greedy"] else f"`greedy: false`, `temperature: {d['temperature']:g}`")
+    how = ("`greedy: true`, `break_stalls: true`" if d.get("break_stalls") else "greedy"
+           if d["greedy"] else f"`greedy: false`, `temperature: {d['temperature']:g}`")
     return f"""{TITLE}
 
 {entry['instances']:,} instances on {entry['maps']} maps no training run sees (set checksum
@@ -116,6 +138,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("models", nargs="+", type=Path, help="model directories (models/<name>)")
     p.add_argument("--temperature", type=float, help="also sampled play at this temperature, "
                                                      "the mode the card recommends")
+    p.add_argument("--break-stalls", action="store_true",
+                   help="also greedy play with stall breaking (the actor's break_stalls)")
+    p.add_argument("--deploy", choices=DEPLOY_MODES, default=None,
+                   help="the mode the card recommends (default: the last evaluated)")
     p.add_argument("--no-planner", action="store_true", help="skip the planner's makespans")
     p.add_argument("--planner-cache", type=Path, default=default_planner_cache())
     args = p.parse_args(argv)
@@ -126,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     for model in args.models:
         try:
             entry = evaluate(model, args.temperature,
-                             None if args.no_planner else args.planner_cache)
+                             None if args.no_planner else args.planner_cache,
+                             break_stalls=args.break_stalls, deploy=args.deploy)
         except (OSError, ValueError, KeyError) as e:
             print(f"card_heldout_large: {e}", file=sys.stderr)
             return 2

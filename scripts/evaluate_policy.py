@@ -20,10 +20,12 @@ import json
 import math
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.stall_breaker import StallRule
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_sim.envs.registry import INSTANCE_SETS
 from sdhn_train.analysis.heldout_eval import (
@@ -101,6 +103,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--unstick", type=int, default=0, metavar="K",
                    help="greedy, but a robot off its goal that has not moved for K steps "
                         "samples its action until it moves (0 = off)")
+    p.add_argument("--break-stalls", nargs="?", const="", default=None,
+                   metavar="CALM,PROGRESS,SAMPLE[,T]",
+                   help="greedy with stall breaking, as the actor nodes' break_stalls runs it "
+                        "(sdhn_policy.stall_breaker); optional: the rule's steps and "
+                        "temperature (default 3,5,3,1)")
     p.add_argument("--runtime", choices=("numpy", "torch"), default="numpy")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--wedge-steps", type=int, default=WEDGE_STEPS,
@@ -125,6 +132,18 @@ def main(argv: list[str] | None = None) -> int:
         print("evaluate_policy: --temperature applies to sampled play: add --sample or --unstick",
               file=sys.stderr)
         return 2
+    stall = None
+    if args.break_stalls is not None:
+        try:
+            stall = StallRule.parse(args.break_stalls) if args.break_stalls else StallRule()
+        except ValueError as e:
+            print(f"evaluate_policy: --break-stalls: {e}", file=sys.stderr)
+            return 2
+        if args.sample or args.unstick or args.temperature != 1.0:
+            print("evaluate_policy: --break-stalls is a greedy mode: not with --sample, "
+                  "--unstick or --temperature (its temperature is its fourth value)",
+                  file=sys.stderr)
+            return 2
     if args.wedge_steps < 1:
         print("evaluate_policy: --wedge-steps must be an integer >= 1", file=sys.stderr)
         return 2
@@ -142,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.monotonic()
             recs = evaluate_set(policy, task, which, sample=args.sample, seed=args.seed,
                                 wedge_steps=args.wedge_steps, unstick=args.unstick,
-                                temperature=args.temperature)
+                                temperature=args.temperature, stall=stall)
             took = time.monotonic() - t0
             plan = None if args.no_planner else planner_makespans(
                 task, which, args.planner_cache, progress=True)
@@ -150,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
             at_t = f" at T={args.temperature:g}" if args.temperature != 1.0 else ""
             mode = (f"sampled{at_t}" if args.sample else
                     f"greedy, sampled{at_t} when stuck {args.unstick}" if args.unstick
-                    else "greedy")
+                    else f"greedy, stall breaking {stall.text()}" if stall else "greedy")
             print(f"[eval] {label} {task}/{which} ({mode}, {args.runtime}): success "
                   f"{summary['success_rate']:.3f} {summary['success_ci95_maps']}, makespan ratio "
                   f"{summary.get('makespan_ratio_mean')}, deadlocks "
@@ -159,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
                             "set_checksum": set_checksum(inst), "mode": mode,
                             "runtime": args.runtime, "seed": args.seed, "unstick": args.unstick,
                             "temperature": args.temperature,
+                            "stall_rule": None if stall is None else asdict(stall),
                             "wedge_steps": args.wedge_steps, "summary": summary,
                             "records": records_json(recs), "planner_makespan": plan})
     if args.out:

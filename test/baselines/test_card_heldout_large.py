@@ -25,7 +25,7 @@ def test_card_gains_the_large_set_and_keeps_the_rest(tmp_path: Path) -> None:
     entry = data["heldout_large"]
     assert entry["instances"] == 1000 and entry["maps"] == 200
     assert set(entry["modes"]) == {"greedy", "sampled at T=0.5"}
-    assert entry["deploy"] == {"greedy": False, "temperature": 0.5}
+    assert entry["deploy"] == {"greedy": False, "temperature": 0.5, "break_stalls": False}
     for m in entry["modes"].values():
         lo, hi = m["success_ci95_maps"]
         assert lo <= m["success_rate"] <= hi
@@ -37,6 +37,17 @@ def test_card_gains_the_large_set_and_keeps_the_rest(tmp_path: Path) -> None:
     md = (model / "card.md").read_text()
     assert md.count(card.TITLE) == 1 and "sampled at" not in md
     assert json.loads((model / "card.json").read_text())["evaluation"] == data["evaluation"]
+    # stall breaking: evaluated and recommended, unless --deploy names another evaluated mode
+    assert card.main([str(model), "--break-stalls", "--no-planner"]) == 0
+    entry = json.loads((model / "card.json").read_text())["heldout_large"]
+    assert entry["deploy"] == {"greedy": True, "temperature": 1.0, "break_stalls": True}
+    assert any(m.startswith("greedy, stall breaking") for m in entry["modes"])
+    assert "`break_stalls: true`" in (model / "card.md").read_text()
+    assert card.main([str(model), "--temperature", "0.5", "--break-stalls", "--deploy",
+                      "sampled", "--no-planner"]) == 0
+    entry = json.loads((model / "card.json").read_text())["heldout_large"]
+    assert len(entry["modes"]) == 3 and entry["deploy"]["temperature"] == 0.5
+    assert card.main([str(model), "--deploy", "break-stalls", "--no-planner"]) == 2
 
 
 def test_card_of_other_weights_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]

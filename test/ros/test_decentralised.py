@@ -88,6 +88,8 @@ def test_sim_rejects_bad_parameters_before_any_topic(params: dict[str, object], 
     ({"robot_id": 4}, "robot_id:"),
     ({"weights_file": "/nonexistent/actor.safetensors"}, "weights_file:"),
     ({"temperature": 0.0}, "temperature"),
+    ({"break_stalls": "true", "greedy": "false"}, "break_stalls:"),
+    ({"break_stalls": "true", "greedy": "true", "stall_rule": "3,x,3"}, "stall_rule:"),
 ])
 def test_actor_rejects_bad_parameters(params: dict[str, object], field: str) -> None:
     args = actor_cmd(0, N)

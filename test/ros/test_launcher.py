@@ -59,7 +59,7 @@ def wait_after(proc: NodeProcess, first: str, then: str, timeout: float) -> bool
 
 
 def test_runs_its_episodes_and_ends_cleanly(weights: Path, tmp_path: Path) -> None:
-    with node_processes(launch(weights, tmp_path, "episodes=2",
+    with node_processes(launch(weights, tmp_path, "episodes=2", "break_stalls=true",
                                "team_ns=/sdhn_launch")) as (launcher,):
         launcher.proc.wait(timeout=60)
     assert launcher.proc.returncode == 0, launcher.output
@@ -76,6 +76,10 @@ def test_runs_its_episodes_and_ends_cleanly(weights: Path, tmp_path: Path) -> No
     status = {p.name for p in (tmp_path / "status").iterdir()}
     assert status == {"sim.ready", "sim-events.jsonl", *(f"actor_{i}.ready" for i in range(4))}
     assert "5/5 ready" in launcher.output, launcher.output
+    # each actor process runs its own stall breaker (greedy play, break_stalls from the config)
+    for i in range(4):
+        log = (tmp_path / "logs" / f"actor_{i}.log").read_text()
+        assert "greedy=True" in log and "break_stalls=3,5,3" in log, log
 
 
 @pytest.mark.parametrize("policy", ["on-failure", "never"])
@@ -180,6 +184,19 @@ def test_temperature_reaches_the_actors_only_in_sampled_deployment(weights: Path
                      (["greedy=true", "temperature=0.5"], "only to deploy mode with greedy")]:
         with pytest.raises(LaunchConfigError, match=f"^temperature: .*{why}"):
             load_config(None, [*base, *bad])
+
+def test_break_stalls_reaches_the_actors_only_in_greedy_maif_deployment(weights: Path) -> None:
+    base = ["mode=deploy", "env=maif-tiny", f"weights={weights}"]
+    params = node_parameters(resolve(load_config(None, [*base, "break_stalls=true"])))
+    assert {params[f"/sdhn/robot_{i}/actor"]["break_stalls"] for i in range(4)} == {True}
+    params = node_parameters(resolve(load_config(None, base)))
+    assert {params[f"/sdhn/robot_{i}/actor"]["break_stalls"] for i in range(4)} == {False}
+    rware = Path(__file__).resolve().parents[2] / "models" / "rware-3-mappo"
+    for bad, why in [(["break_stalls=true", "greedy=false"], "greedy: true"),
+                     (["break_stalls=true", "env=rware-3", f"weights={rware}"], "RWARE")]:
+        with pytest.raises(LaunchConfigError, match=f"^break_stalls: .*{why}"):
+            load_config(None, [*base, *bad])
+
 
 @pytest.mark.parametrize("ns", ["sdhn", "/sdhn/", "/1team", "/a__b", ""])
 def test_team_ns_follows_the_one_rule(ns: str) -> None:

@@ -25,6 +25,8 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
     weights: PATH         (deploy: actor .safetensors, or a run dir holding actor.safetensors)
     seed: 0               episodes: 3 (0 = until stopped)      greedy: true
     temperature: 1.0      (deploy with greedy false: actions from softmax(logits / T))
+    break_stalls: false   (deploy with greedy true, MAIF: a robot whose play has stalled samples
+                          a few actions; sdhn_policy.stall_breaker)
     step_deadline: 1.0    max_steps: 0                         instance: -1
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
     restart: {policy: never | on-failure, max_restarts: 3}
@@ -61,7 +63,7 @@ from typing import IO, Any
 import yaml
 
 from sdhn_sim.data_files import fastdds_profile
-from sdhn_sim.envs.registry import env_names, team_size
+from sdhn_sim.envs.registry import RWARE_TASKS, env_names, team_size
 from sdhn_sim.episode import CSV_FIELDS, EpisodeResult
 from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.overrides import OverrideError, set_field
@@ -102,6 +104,7 @@ class LaunchConfig:
     episodes: int = 0  # 0 = until stopped
     greedy: bool = True  # deploy: argmax actions; train mode always samples
     temperature: float = 1.0  # deploy with greedy false: sampling temperature (train mode: 1)
+    break_stalls: bool = False  # deploy with greedy true: stall breaking (actor break_stalls)
     step_deadline: float = 1.0
     max_steps: int = 0  # 0 = the environment's default
     instance: int = -1
@@ -197,6 +200,14 @@ def validate(cfg: LaunchConfig) -> None:
     if cfg.temperature != 1.0 and (cfg.mode != "deploy" or cfg.greedy):
         raise LaunchConfigError("temperature: applies only to deploy mode with greedy: false "
                                 "(train mode samples the policy itself; greedy takes the argmax)")
+    if not isinstance(cfg.break_stalls, bool):
+        raise LaunchConfigError(f"break_stalls: got {cfg.break_stalls!r}; allowed: true or false")
+    if cfg.break_stalls and (cfg.mode != "deploy" or not cfg.greedy):
+        raise LaunchConfigError("break_stalls: applies only to deploy mode with greedy: true "
+                                "(sampled play has no standstill to break)")
+    if cfg.break_stalls and cfg.env in RWARE_TASKS:
+        raise LaunchConfigError(f"break_stalls: reads MAIF observations; {cfg.env} is an RWARE "
+                                "task")
     for name in ("step_deadline", "start_timeout", "stop_timeout", "status_interval"):
         if not getattr(cfg, name) > 0:
             raise LaunchConfigError(f"{name}: must be > 0 seconds, got {getattr(cfg, name)}")
@@ -322,6 +333,7 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
             "weights_file": cfg.weights if cfg.mode == "deploy" else "",
             "greedy": cfg.greedy if cfg.mode == "deploy" else False, "seed": cfg.seed,
             "temperature": float(cfg.temperature),
+            "break_stalls": bool(cfg.break_stalls and cfg.mode == "deploy"),
             "env": cfg.env, "managed": cfg.managed}
     return nodes
 

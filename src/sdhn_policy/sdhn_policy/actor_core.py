@@ -21,8 +21,10 @@ import numpy as np
 import numpy.typing as npt
 
 from sdhn_policy.actor_runtime import ActorRuntime, check_temperature
+from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
 from sdhn_sim.drops import DropKind
+from sdhn_sim.envs.maif import OBS_SIZE as MAIF_OBS_SIZE
 
 MAX_WEIGHTS_BYTES = 64 * 1024 * 1024
 """Largest weights payload an actor accepts (the actor itself is ~100 kB)."""
@@ -72,9 +74,13 @@ class ActorCore:
     def __init__(self, robot_id: int, num_robots: int, greedy: bool, seed: int,
                  runtime: ActorRuntime | None = None, *,
                  runtime_cls: type[ActorRuntime] = ActorRuntime,
-                 temperature: float = 1.0) -> None:
+                 temperature: float = 1.0, stall_rule: StallRule | None = None) -> None:
         self.robot_id = robot_id
         self.temperature = check_temperature(temperature)  # sampled play only
+        if stall_rule is not None and not greedy:
+            raise ValueError("stall breaking is a greedy mode (greedy must be true)")
+        # greedy play that samples a few actions when this robot's play has stalled
+        self.stalls = StallBreaker(stall_rule, 1) if stall_rule is not None else None
         self.runtime_cls = runtime_cls  # builds the runtime of every weights message
         self.num_robots = num_robots
         self.greedy = greedy
@@ -101,6 +107,8 @@ class ActorCore:
         self.episode = self.last_step = None
         if self.runtime is not None:
             self.hidden = self.runtime.initial_state(1)
+        if self.stalls is not None:
+            self.stalls.reset()
 
     def _check(self, rt: ActorRuntime) -> None:
         spec = rt.spec
@@ -108,6 +116,10 @@ class ActorCore:
             raise IncompatibleWeightsError(
                 f"incompatible weights: trained for {spec.num_robots} robots (one-hot id), this "
                 f"team has {self.num_robots}")
+        if self.stalls is not None and spec.obs_size != MAIF_OBS_SIZE:
+            raise IncompatibleWeightsError(
+                f"incompatible weights: stall breaking reads MAIF observations ({MAIF_OBS_SIZE} "
+                f"floats), this actor takes {spec.obs_size}")
 
     def offer_weights(self, fmt: str, version: int, payload: bytes, sha256: str) -> bool:
         """Validate new weights and queue them for the next step; False when that version is
@@ -159,9 +171,14 @@ class ActorCore:
         if step == 0 or episode != self.episode:
             self.hidden = self.runtime.initial_state(1)
             self.episode, self.last_step = episode, None
-        action, logp, self.hidden = self.runtime.act(obs[None], self.hidden, self.greedy,
+            if self.stalls is not None:
+                self.stalls.reset()
+        greedy, temperature = self.greedy, self.temperature
+        if self.stalls is not None and self.stalls.update(obs[None])[0]:
+            greedy, temperature = False, self.stalls.rule.temperature
+        action, logp, self.hidden = self.runtime.act(obs[None], self.hidden, greedy,
                                                      self.rng, robot_id=self.robot_id,
-                                                     temperature=self.temperature)
+                                                     temperature=temperature)
         self.last_step = step
         return Decision(int(action[0]), float(logp[0]), self.runtime.version)
 

@@ -46,6 +46,7 @@ from rclpy.subscription import Subscription
 
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
+from sdhn_policy.stall_breaker import StallRule
 from sdhn_policy.weights import WeightsError
 from sdhn_sim.diagnostics import (
     OK,
@@ -76,6 +77,10 @@ PARAMETERS = {
     "temperature": (1.0, floating("sampling temperature (greedy false): actions drawn from "
                                   "softmax(logits / T); T < 1 leans towards the argmax but still "
                                   "leaves a standstill; 1 = the policy itself", 0.01, 100.0)),
+    "break_stalls": (False, boolean("greedy true, MAIF: stall breaking, a robot whose play has "
+                                    "stalled samples a few actions (sdhn_policy.stall_breaker)")),
+    "stall_rule": ("3,5,3", string("break_stalls: CALM,PROGRESS,SAMPLE[,T], the rule's step "
+                                   "counts and sampling temperature")),
     "seed": (0, integer("seed of the action sampler", 0)),
     "backend": ("numpy", string("policy runtime: 'numpy' or 'onnx' (onnxruntime); same actions")),
     "managed": (False, boolean("wait for lifecycle transitions (configure, activate) through the "
@@ -104,6 +109,15 @@ class ActorNode(LifecycleNode):
         if robot_id >= num_robots:
             raise ConfigError(f"robot_id: got {robot_id}; allowed: 0 <= robot_id < num_robots "
                               f"({num_robots})")
+        self.stall_rule: StallRule | None = None
+        if p["break_stalls"]:
+            if not p["greedy"]:
+                raise ConfigError("break_stalls: applies only to greedy: true (sampled play "
+                                  "has no standstill to break)")
+            try:
+                self.stall_rule = StallRule.parse(p["stall_rule"])
+            except ValueError as e:
+                raise ConfigError(f"stall_rule: {e}") from None
         self.target = target_reader(p["env"]) if p["env"] else None
         if p["env"] and self.target is None:
             raise ConfigError(f"env: unknown {p['env']!r}; allowed: '' or one of "
@@ -141,8 +155,9 @@ class ActorNode(LifecycleNode):
         self._drops_window = WindowCounts()
         self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
         how = "managed: waiting for configure" if p["managed"] else "configuring itself"
+        stalls = self.stall_rule.text() if self.stall_rule else "off"
         self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
-                               f"temperature={p['temperature']:g}, "
+                               f"temperature={p['temperature']:g}, break_stalls={stalls}, "
                                f"backend={p['backend']}, {how}")
 
     # -- lifecycle transitions (lifecycle_msgs/srv/ChangeState, or autostart) -----------------
@@ -152,7 +167,8 @@ class ActorNode(LifecycleNode):
         p, weights_file = self.params, self.params["weights_file"]
         runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
         return ActorCore(self.robot_id, p["num_robots"], p["greedy"], p["seed"], runtime,
-                         runtime_cls=self.runtime_cls, temperature=p["temperature"])
+                         runtime_cls=self.runtime_cls, temperature=p["temperature"],
+                         stall_rule=self.stall_rule)
 
     def weights_error(self, e: WeightsError) -> str:
         return f"weights_file: {self.params['weights_file']}: {e.reason}; {WEIGHTS_ALLOWED}"

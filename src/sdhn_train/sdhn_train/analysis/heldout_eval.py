@@ -35,6 +35,7 @@ import numpy.typing as npt
 from scipy import stats
 
 from sdhn_policy.actor_runtime import ActorRuntime, check_temperature, choose_actions
+from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import ActorSpec, atomic_write_bytes
 from sdhn_sim.envs.maif import MaifEnv
 from sdhn_sim.envs.maif_instances import MaifInstances
@@ -89,12 +90,16 @@ def set_checksum(inst: MaifInstances) -> str:
 
 def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False, seed: int = 0,
                  wedge_steps: int = WEDGE_STEPS, reward: str = "corrected",
-                 unstick: int = 0, temperature: float = 1.0) -> list[InstanceResult]:
+                 unstick: int = 0, temperature: float = 1.0,
+                 stall: StallRule | None = None) -> list[InstanceResult]:
     """One episode per instance of set ``which`` of ``task``, all in one batch. ``sample``:
     actions drawn from softmax(logits / ``temperature``). ``unstick`` > 0 (with greedy play): a
     robot off its goal that has not moved for ``unstick`` steps samples its action from the
-    policy (at ``temperature``) instead of taking the argmax, until it moves."""
+    policy (at ``temperature``) instead of taking the argmax, until it moves. ``stall`` (with
+    greedy play): stall breaking as the actor nodes run it (``sdhn_policy.stall_breaker``)."""
     check_temperature(temperature)
+    if stall is not None and (sample or unstick):
+        raise ValueError("stall breaking is a greedy mode: not with sample or unstick")
     inst = set_instances(task, which)
     b = inst.num_instances
     env = MaifEnv(inst, num_envs=b, seed=seed, name=task, instance_order="round_robin",
@@ -105,6 +110,7 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
     ids = np.tile(np.arange(n), b) if policy.spec.use_robot_id else None
     rng = np.random.default_rng(seed)
     still = np.zeros((b, n), dtype=np.int64)  # steps since each robot last moved
+    breaker = StallBreaker(stall, b * n) if stall is not None else None
     out: dict[int, InstanceResult] = {}
     while len(out) < b:
         before, goals = env.positions, env.goals
@@ -117,6 +123,12 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
                 drawn, _, _ = policy.act(flat, h, greedy=False, rng=rng, robot_id=ids,
                                          temperature=temperature)
                 act = np.where(stuck.reshape(-1), drawn, act)
+        if breaker is not None:
+            stalled = breaker.update(flat)
+            if stalled.any():  # same hidden state in, so the same next hidden state out
+                drawn, _, _ = policy.act(flat, h, greedy=False, rng=rng, robot_id=ids,
+                                         temperature=breaker.rule.temperature)
+                act = np.where(stalled, drawn, act)
         h = h_next
         res = env.step(act.reshape(b, n))
         after = env.positions
@@ -135,6 +147,8 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
                                         deadlock=not ep.completed and wedged > 0)
             h[e * n:(e + 1) * n] = 0.0
             still[e] = 0
+            if breaker is not None:
+                breaker.reset(slice(e * n, (e + 1) * n))
         obs = res.obs
     return [out[e] for e in range(b)]
 

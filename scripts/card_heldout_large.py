@@ -68,7 +68,8 @@ def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
         runs.append((f"sampled at T={temperature:g}",
                      {"sample": True, "temperature": temperature}))
     if break_stalls:
-        runs.append((f"greedy, stall breaking {StallRule().text()}", {"stall": StallRule()}))
+        rule = StallRule()  # the actor's default, as the launch configs deploy it
+        runs.append((f"greedy, stall breaking {rule.text()}", {"stall": rule}))
     deploy = deploy or ("break-stalls" if break_stalls else
                         "sampled" if temperature is not None else "greedy")
     if (deploy == "sampled" and temperature is None) or (deploy == "break-stalls"

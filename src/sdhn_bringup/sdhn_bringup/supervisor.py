@@ -200,8 +200,6 @@ def validate(cfg: LaunchConfig) -> None:
     if cfg.temperature != 1.0 and (cfg.mode != "deploy" or cfg.greedy):
         raise LaunchConfigError("temperature: applies only to deploy mode with greedy: false "
                                 "(train mode samples the policy itself; greedy takes the argmax)")
-    if not isinstance(cfg.break_stalls, bool):
-        raise LaunchConfigError(f"break_stalls: got {cfg.break_stalls!r}; allowed: true or false")
     if cfg.break_stalls and (cfg.mode != "deploy" or not cfg.greedy):
         raise LaunchConfigError("break_stalls: applies only to deploy mode with greedy: true "
                                 "(sampled play has no standstill to break)")

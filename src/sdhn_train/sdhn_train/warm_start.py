@@ -32,7 +32,7 @@ def load_actor_into(actor: Actor, path: str | os.PathLike[str]) -> int:
     if dataclasses.replace(spec, num_robots=mine.num_robots) != mine:
         raise ConfigError(f"actor.init_from = {str(path)!r}: its actor {spec} differs from the "
                           f"one configured here {mine}")
-    spec, tensors = for_team(spec, tensors, mine.num_robots)
+    _, tensors = for_team(spec, tensors, mine.num_robots)
     with torch.no_grad():
         for name, t in actor.tensors().items():
             t.copy_(torch.from_numpy(tensors[name]))

@@ -19,6 +19,7 @@ from sdhn_sim.envs.maif_instances import (
     heldout_large_config,
     large_config,
     procedural_config,
+    validation_config,
 )
 from sdhn_sim.envs.registry import instance_set
 
@@ -42,6 +43,7 @@ def test_generator_seeds_of_every_set_are_pairwise_disjoint() -> None:
         for which, c in (("train", cfg), ("heldout", heldout_config(cfg)),
                          ("large", large_config(cfg)),
                          ("heldout_large", heldout_large_config(cfg)),
+                         ("validation", validation_config(cfg)),
                          ("procedural", procedural_config(cfg))):
             assert c.instance_seed not in seeds, (name, which, seeds.get(c.instance_seed))
             seeds[c.instance_seed] = f"{name}/{which}"
@@ -59,7 +61,7 @@ def test_large_heldout_set_size_and_prefix_checksum() -> None:
 def test_no_heldout_map_is_a_training_map() -> None:
     """maif-tiny (12x12, the set where a collision is likeliest): no map of either held-out
     set equals a map of the fixed, the large or the first 2,000 procedural training maps."""
-    held = [instance_set("maif-tiny", w) for w in ("heldout", "heldout_large")]
+    held = [instance_set("maif-tiny", w) for w in ("heldout", "heldout_large", "validation")]
     held_maps = {m.tobytes() for s in held for m in s.obstacles}  # type: ignore[union-attr]
     for which in ("train", "large"):
         inst = instance_set("maif-tiny", which)
@@ -67,6 +69,15 @@ def test_no_heldout_map_is_a_training_map() -> None:
     stream = instance_set("maif-tiny", "procedural")
     assert isinstance(stream, ProceduralInstances)
     assert not held_maps & {stream.instance(k)[0].tobytes() for k in range(2000)}
+
+
+def test_validation_maps_are_not_heldout_maps() -> None:
+    """Deployment settings chosen on the validation set say nothing about the large held-out
+    set only if the two share no map (maif-tiny: the likeliest to collide)."""
+    val, held = (instance_set("maif-tiny", w) for w in ("validation", "heldout_large"))
+    assert val.num_instances == held.num_instances >= 1000
+    assert not ({m.tobytes() for m in val.obstacles}  # type: ignore[union-attr]
+                & {m.tobytes() for m in held.obstacles})  # type: ignore[union-attr]
 
 
 def test_procedural_stream_is_deterministic_fresh_and_solvable() -> None:

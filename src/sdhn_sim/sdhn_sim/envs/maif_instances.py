@@ -82,6 +82,10 @@ HELDOUT_LARGE_MAPS = 200
 HELDOUT_LARGE_FORMATIONS = 5
 """The large held-out set: 200 maps x 5 formations = 1,000 instances from seed + 2,000,000. No
 training run ever sees it; it is what a policy's generalisation is measured on."""
+VALIDATION_SEED_OFFSET = 4_000_000
+"""The validation set: the large held-out set's shape (200 maps x 5 formations) from seed +
+4,000,000. Deployment settings (the stall rule, sampling temperatures) are chosen on it, so the
+large held-out set reports them without having been looked at while choosing."""
 PROCEDURAL_SEED_OFFSET = 3_000_000
 PROCEDURAL_MAPS = 1_000_000
 """The procedural training stream: map ``k`` (one formation each) is drawn from the generator
@@ -105,6 +109,13 @@ def heldout_large_config(cfg: MaifConfig) -> MaifConfig:
     return dataclasses.replace(cfg, num_maps=HELDOUT_LARGE_MAPS,
                                num_formations=HELDOUT_LARGE_FORMATIONS,
                                instance_seed=cfg.instance_seed + HELDOUT_LARGE_SEED_OFFSET)
+
+
+def validation_config(cfg: MaifConfig) -> MaifConfig:
+    """The configuration of ``cfg``'s validation set (1,000 instances on 200 maps, for choosing
+    deployment settings; neither trained nor reported on)."""
+    return dataclasses.replace(heldout_large_config(cfg),
+                               instance_seed=cfg.instance_seed + VALIDATION_SEED_OFFSET)
 
 
 def procedural_config(cfg: MaifConfig) -> MaifConfig:

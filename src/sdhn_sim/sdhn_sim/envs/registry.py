@@ -8,8 +8,9 @@ Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100))
 ``instance_set`` ("train" (default): the 100 fixed instances | "heldout": 100 instances drawn
 with another generator seed, for evaluation on maps never trained on | "large": 1000 instances
 (100 maps) from a third seed, to train on many maps | "heldout_large": 1000 instances (200 maps)
-from a fourth seed, the large held-out set no training run sees | "procedural": a fresh map
-per instance from a fifth seed, a training stream with no fixed list).
+from a fourth seed, the large held-out set no training run sees | "validation": the same size
+from a sixth seed, where deployment settings are chosen | "procedural": a fresh map per
+instance from a fifth seed, a training stream with no fixed list).
 
 RWARE: ``rware-3``, ``rware-6``, ``rware-9`` = rware's ``rware-small-{N}ag-v2``;
 ``rware-tiny-2ag``, ``rware-tiny-4ag`` = rware's ``rware-tiny-{N}ag-v2`` (the tasks with published
@@ -40,13 +41,14 @@ from .maif_instances import (
     large_config,
     load_instances,
     procedural_config,
+    validation_config,
 )
 from .rware_batched import RwareBatchedEnv
 from .rware_env import RwareEnv
 from .single import SingleEnv
 
 MAIF_OVERRIDES = ("max_steps", "instance_ids", "instance_order", "reward", "instance_set")
-INSTANCE_SETS = ("train", "heldout", "large", "heldout_large", "procedural")
+INSTANCE_SETS = ("train", "heldout", "large", "heldout_large", "validation", "procedural")
 TRAINING_SETS = ("train", "large", "procedural")
 """The sets a training run may draw from; the held-out sets are for evaluation only."""
 RWARE_OVERRIDES = ("max_steps", "size", "difficulty", "backend")
@@ -79,7 +81,7 @@ def instance_set(name: str, which: str) -> MaifInstances | ProceduralInstances:
     if which == "procedural":
         return ProceduralInstances(procedural_config(cfg))
     cfg = {"train": cfg, "heldout": heldout_config(cfg), "large": large_config(cfg),
-           "heldout_large": heldout_large_config(cfg)}[which]
+           "heldout_large": heldout_large_config(cfg), "validation": validation_config(cfg)}[which]
     return load_instances(cfg)
 
 

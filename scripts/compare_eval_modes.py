@@ -18,7 +18,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from sdhn_train.analysis.heldout_eval import paired_makespan_ratios
+from sdhn_train.analysis.heldout_eval import modes_table, paired_makespan_ratios
 
 
 def tables(results: list[dict[str, Any]]) -> str:
@@ -29,18 +29,9 @@ def tables(results: list[dict[str, Any]]) -> str:
     for (policy, task, which), runs in groups.items():
         n, paired = paired_makespan_ratios(runs)
         out += [f"{policy} on {task} / {which} ({runs[0]['summary']['instances']} instances; "
-                f"paired makespan over the {n} every mode completed)", "",
-                "| mode | success [95 % CI, maps] | maps at 0 | deadlock / wander | makespan / "
-                "planner, own completions | makespan / planner, paired |",
-                "|---|---|---|---|---|---|"]
-        for r, pm in zip(runs, paired, strict=True):
-            s = r["summary"]
-            lo, hi = s["success_ci95_maps"]
-            own = s.get("makespan_ratio_mean")
-            out.append(f"| {r['mode']} | {s['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] | "
-                       f"{s['maps_with_zero_success']} | {s['failures']['deadlock']} / "
-                       f"{s['failures']['wander']} | {'–' if own is None else f'{own:.3f}'} | "
-                       f"{'–' if pm is None else f'{pm:.3f}'} |")
+                f"paired makespan over the {n} every mode completed)", ""]
+        out += modes_table([(r["mode"], r["summary"], pm)
+                            for r, pm in zip(runs, paired, strict=True)])
         out.append("")
     return "\n".join(out)
 

@@ -31,6 +31,7 @@ from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_train.analysis.heldout_eval import (
     default_planner_cache,
     evaluate_set,
+    modes_table,
     paired_makespan_ratios,
     planner_makespans,
     records_json,
@@ -138,17 +139,9 @@ def markdown(results: list[dict[str, Any]], top: int = 5) -> str:
             out.append(f"| {s['rule']} | {s['success_rate']:.3f} | {slow} | {s['deadlocks']} |")
         h = res["heldout_large"]
         out += ["", f"Large held-out set (paired makespan over the {h['paired_instances']} "
-                "instances every mode completed)", "",
-                "| mode | success [95 % CI, maps] | maps at 0 | deadlock / wander | makespan / "
-                "planner, own | paired |", "|---|---|---|---|---|---|"]
-        for r in h["modes"]:
-            s = r["summary"]
-            lo, hi = s["success_ci95_maps"]
-            own, pm = s.get("makespan_ratio_mean"), r["makespan_ratio_paired"]
-            out.append(f"| {r['mode']} | {s['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] | "
-                       f"{s['maps_with_zero_success']} | {s['failures']['deadlock']} / "
-                       f"{s['failures']['wander']} | {'–' if own is None else f'{own:.3f}'} | "
-                       f"{'–' if pm is None else f'{pm:.3f}'} |")
+                "instances every mode completed)", ""]
+        out += modes_table([(r["mode"], r["summary"], r["makespan_ratio_paired"])
+                            for r in h["modes"]])
         out.append("")
     return "\n".join(out)
 

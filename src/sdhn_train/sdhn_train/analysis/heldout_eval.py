@@ -266,6 +266,22 @@ def paired_makespan_ratios(runs: list[dict[str, Any]]) -> tuple[int, list[float 
     return len(both), means
 
 
+def modes_table(rows: list[tuple[str, dict[str, Any], float | None]]) -> list[str]:
+    """Markdown lines comparing modes of one policy on one set: (mode, ``summarise`` output,
+    paired makespan ratio from ``paired_makespan_ratios``) per row."""
+    out = ["| mode | success [95 % CI, maps] | maps at 0 | deadlock / wander | makespan / "
+           "planner, own completions | makespan / planner, paired |",
+           "|---|---|---|---|---|---|"]
+    for mode, s, paired in rows:
+        lo, hi = s["success_ci95_maps"]
+        own = s.get("makespan_ratio_mean")
+        out.append(f"| {mode} | {s['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] | "
+                   f"{s['maps_with_zero_success']} | {s['failures']['deadlock']} / "
+                   f"{s['failures']['wander']} | {'–' if own is None else f'{own:.3f}'} | "
+                   f"{'–' if paired is None else f'{paired:.3f}'} |")
+    return out
+
+
 def _mean(xs: list[int] | list[float]) -> float | None:
     return float(np.mean(xs)) if xs else None
 

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Add the large held-out set to a shipped MAIF model's card: greedy play and, with
-``--temperature T``, sampled play at T, with ``--break-stalls`` greedy play with stall breaking
-(``sdhn_policy.stall_breaker``), on the 1,000 instances on 200 maps no training run sees; the
-card recommends the mode its launch config deploys (``--deploy``; default: the last one
-evaluated of greedy, sampled, break-stalls).
+``--temperature T``, sampled play at T, with ``--break-stalls [RULE]`` greedy play with stall
+breaking (``sdhn_policy.stall_breaker``), on the 1,000 instances on 200 maps no training run
+sees; the card recommends the mode its launch config deploys (``--deploy``; default: the last
+one evaluated of greedy, sampled, break-stalls).
 
     .venv/bin/python scripts/card_heldout_large.py models/maif-10-sdhn --break-stalls
     .venv/bin/python scripts/card_heldout_large.py models/maif-20-sdhn --temperature 0.25 \
@@ -47,7 +47,7 @@ DEPLOY_MODES = ("greedy", "sampled", "break-stalls")
 
 
 def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
-             seed: int = 0, *, break_stalls: bool = False, deploy: str | None = None
+             seed: int = 0, *, stall_rule: StallRule | None = None, deploy: str | None = None
              ) -> dict[str, Any]:
     """card.json's ``heldout_large`` entry for the model directory ``model``."""
     card = json.loads((model / "card.json").read_text())
@@ -67,9 +67,9 @@ def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
     if temperature is not None:
         runs.append((f"sampled at T={temperature:g}",
                      {"sample": True, "temperature": temperature}))
-    if break_stalls:
-        rule = StallRule()  # the actor's default, as the launch configs deploy it
-        runs.append((f"greedy, stall breaking {rule.text()}", {"stall": rule}))
+    break_stalls = stall_rule is not None
+    if stall_rule is not None:
+        runs.append((f"greedy, stall breaking {stall_rule.text()}", {"stall": stall_rule}))
     deploy = deploy or ("break-stalls" if break_stalls else
                         "sampled" if temperature is not None else "greedy")
     if (deploy == "sampled" and temperature is None) or (deploy == "break-stalls"
@@ -88,7 +88,10 @@ def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
             "maps": inst.num_instances // inst.num_formations, "seed": seed, "modes": modes,
             "deploy": {"greedy": deploy != "sampled",
                        "temperature": temperature if deploy == "sampled" else 1.0,
-                       "break_stalls": deploy == "break-stalls"}}
+                       "break_stalls": deploy == "break-stalls",
+                       **({"stall_rule": stall_rule.text()}
+                          if deploy == "break-stalls" and stall_rule is not None
+                          and stall_rule != StallRule() else {})}}
 
 
 def section(entry: dict[str, Any]) -> str:
@@ -103,7 +106,8 @@ def section(entry: dict[str, Any]) -> str:
                     f"{m['maps_with_zero_success']} | {f['deadlock']} / {f['wander']} | "
                     f"{ratio(m['makespan_ratio_mean'])}, {ratio(m['makespan_ratio_p90'])} |")
     d = entry["deploy"]
-    how = ("`greedy: true`, `break_stalls: true`" if d.get("break_stalls") else "greedy"
+    rule = f", `stall_rule: \"{d['stall_rule']}\"`" if d.get("stall_rule") else ""
+    how = (f"`greedy: true`, `break_stalls: true`{rule}" if d.get("break_stalls") else "greedy"
            if d["greedy"] else f"`greedy: false`, `temperature: {d['temperature']:g}`")
     return f"""{TITLE}
 
@@ -139,8 +143,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("models", nargs="+", type=Path, help="model directories (models/<name>)")
     p.add_argument("--temperature", type=float, help="also sampled play at this temperature, "
                                                      "the mode the card recommends")
-    p.add_argument("--break-stalls", action="store_true",
-                   help="also greedy play with stall breaking (the actor's break_stalls)")
+    p.add_argument("--break-stalls", nargs="?", const="", default=None,
+                   metavar="CALM,PROGRESS,SAMPLE[,T]",
+                   help="also greedy play with stall breaking (the actor's break_stalls); "
+                        "optional: the rule (default: the actor's, "
+                        f"{StallRule().text()}; scripts/tune_stall_rule.py chooses one)")
     p.add_argument("--deploy", choices=DEPLOY_MODES, default=None,
                    help="the mode the card recommends (default: the last evaluated)")
     p.add_argument("--no-planner", action="store_true", help="skip the planner's makespans")
@@ -150,11 +157,17 @@ def main(argv: list[str] | None = None) -> int:
                                              and args.temperature > 0):
         print("card_heldout_large: --temperature must be a finite number > 0", file=sys.stderr)
         return 2
+    try:
+        rule = (None if args.break_stalls is None else
+                StallRule.parse(args.break_stalls) if args.break_stalls else StallRule())
+    except ValueError as e:
+        print(f"card_heldout_large: --break-stalls: {e}", file=sys.stderr)
+        return 2
     for model in args.models:
         try:
             entry = evaluate(model, args.temperature,
                              None if args.no_planner else args.planner_cache,
-                             break_stalls=args.break_stalls, deploy=args.deploy)
+                             stall_rule=rule, deploy=args.deploy)
         except (OSError, ValueError, KeyError) as e:
             print(f"card_heldout_large: {e}", file=sys.stderr)
             return 2

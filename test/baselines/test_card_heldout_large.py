@@ -48,6 +48,13 @@ def test_card_gains_the_large_set_and_keeps_the_rest(tmp_path: Path) -> None:
     entry = json.loads((model / "card.json").read_text())["heldout_large"]
     assert len(entry["modes"]) == 3 and entry["deploy"]["temperature"] == 0.5
     assert card.main([str(model), "--deploy", "break-stalls", "--no-planner"]) == 2
+    # a rule other than the actor's default is named in the card, for the launch config
+    assert card.main([str(model), "--break-stalls", "2,10,2", "--no-planner"]) == 0
+    entry = json.loads((model / "card.json").read_text())["heldout_large"]
+    assert entry["deploy"]["stall_rule"] == "2,10,2"
+    assert "greedy, stall breaking 2,10,2" in entry["modes"]
+    assert '`stall_rule: "2,10,2"`' in (model / "card.md").read_text()
+    assert card.main([str(model), "--break-stalls", "2,10", "--no-planner"]) == 2
 
 
 def test_card_of_other_weights_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -196,6 +196,16 @@ def test_break_stalls_reaches_the_actors_only_in_greedy_maif_deployment(weights:
                      (["break_stalls=true", "env=rware-3", f"weights={rware}"], "RWARE")]:
         with pytest.raises(LaunchConfigError, match=f"^break_stalls: .*{why}"):
             load_config(None, [*base, *bad])
+    # a chosen rule reaches every actor; without one the actors keep their default
+    params = node_parameters(resolve(load_config(None, [*base, "break_stalls=true",
+                                                        "stall_rule=2,10,2"])))
+    assert {params[f"/sdhn/robot_{i}/actor"]["stall_rule"] for i in range(4)} == {"2,10,2"}
+    assert "stall_rule" not in node_parameters(resolve(load_config(
+        None, [*base, "break_stalls=true"])))["/sdhn/robot_0/actor"]
+    for bad, why in [(["stall_rule=2,10,2"], "only with break_stalls"),
+                     (["break_stalls=true", "stall_rule=2,10"], "CALM,PROGRESS")]:
+        with pytest.raises(LaunchConfigError, match=f"^stall_rule: .*{why}"):
+            load_config(None, [*base, *bad])
 
 
 @pytest.mark.parametrize("ns", ["sdhn", "/sdhn/", "/1team", "/a__b", ""])

@@ -27,6 +27,8 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
     temperature: 1.0      (deploy with greedy false: actions from softmax(logits / T))
     break_stalls: false   (deploy with greedy true, MAIF: a robot whose play has stalled samples
                           a few actions; sdhn_policy.stall_breaker)
+    stall_rule: ""        (with break_stalls: CALM,PROGRESS,SAMPLE[,T], the rule the actors
+                          run; "" = their default. scripts/tune_stall_rule.py chooses one)
     step_deadline: 1.0    max_steps: 0                         instance: -1
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
     restart: {policy: never | on-failure, max_restarts: 3}
@@ -105,6 +107,7 @@ class LaunchConfig:
     greedy: bool = True  # deploy: argmax actions; train mode always samples
     temperature: float = 1.0  # deploy with greedy false: sampling temperature (train mode: 1)
     break_stalls: bool = False  # deploy with greedy true: stall breaking (actor break_stalls)
+    stall_rule: str = ""  # with break_stalls: the actors' stall_rule ("" = their default)
     step_deadline: float = 1.0
     max_steps: int = 0  # 0 = the environment's default
     instance: int = -1
@@ -206,6 +209,15 @@ def validate(cfg: LaunchConfig) -> None:
     if cfg.break_stalls and cfg.env in RWARE_TASKS:
         raise LaunchConfigError(f"break_stalls: reads MAIF observations; {cfg.env} is an RWARE "
                                 "task")
+    if cfg.stall_rule:
+        from sdhn_policy.stall_breaker import StallRule
+
+        if not cfg.break_stalls:
+            raise LaunchConfigError("stall_rule: applies only with break_stalls: true")
+        try:
+            StallRule.parse(cfg.stall_rule)
+        except ValueError as e:
+            raise LaunchConfigError(f"stall_rule: {e}") from None
     for name in ("step_deadline", "start_timeout", "stop_timeout", "status_interval"):
         if not getattr(cfg, name) > 0:
             raise LaunchConfigError(f"{name}: must be > 0 seconds, got {getattr(cfg, name)}")
@@ -332,6 +344,7 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
             "greedy": cfg.greedy if cfg.mode == "deploy" else False, "seed": cfg.seed,
             "temperature": float(cfg.temperature),
             "break_stalls": bool(cfg.break_stalls and cfg.mode == "deploy"),
+            **({"stall_rule": cfg.stall_rule} if cfg.stall_rule else {}),
             "env": cfg.env, "managed": cfg.managed}
     return nodes
 

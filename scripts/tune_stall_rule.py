@@ -48,6 +48,7 @@ from sdhn_train.analysis.stall_tuning import (
     TEMPERATURES,
     RuleScore,
     choose,
+    pool,
     ranked,
     rule_grid,
     score,
@@ -125,18 +126,46 @@ def tune(model: Path, grid: list[StallRule], *, refine: list[float], refine_top:
             "heldout_large": {"paired_instances": paired_n, "modes": report}}
 
 
+def _scores(entries: list[dict[str, Any]]) -> list[RuleScore]:
+    return [RuleScore(rule=StallRule.parse(e["rule"]), success_rate=e["success_rate"],
+                      slowdown=e["slowdown"], paired_instances=e["paired_instances"],
+                      deadlocks=e["deadlocks"]) for e in entries]
+
+
+def pooled(results: list[dict[str, Any]], tolerance: float = SUCCESS_TOLERANCE
+           ) -> dict[str, Any] | None:
+    """The rules every policy was scored with, averaged over the policies, and the one rule
+    that serves them all best (a candidate for the actors' default); None for one policy."""
+    if len(results) < 2:
+        return None
+    scores = ranked(pool([_scores(r["validation"]["scores"]) for r in results]), tolerance)
+    return {"models": [r["model"] for r in results], "scores": [s.as_json() for s in scores],
+            "chosen": scores[0].rule.text()}
+
+
+def _score_rows(scores: list[dict[str, Any]]) -> list[str]:
+    out = ["| rule (calm, progress, sample[, T]) | success | makespan / greedy's | deadlocks |",
+           "|---|---|---|---|"]
+    for s in scores:
+        slow = "–" if s["slowdown"] is None else f"{s['slowdown']:.3f}"
+        out.append(f"| {s['rule']} | {s['success_rate']:.3f} | {slow} | {s['deadlocks']} |")
+    return out
+
+
 def markdown(results: list[dict[str, Any]], top: int = 5) -> str:
     out = []
+    both = pooled(results)
+    if both is not None:
+        out += [f"### One rule for all: {', '.join(both['models'])}", "",
+                f"Validation set, success and makespan / greedy's averaged over the policies; "
+                f"the {top} best of {len(both['scores'])} rules; chosen: **{both['chosen']}**",
+                "", *_score_rows(both["scores"][:top]), ""]
     for res in results:
         v = res["validation"]
         out += [f"### {res['model']} ({res['task']})", "",
                 f"Validation set (1,000 instances; greedy {v['greedy_success']:.3f}), the "
                 f"{top} best of {len(v['scores'])} rules; chosen: **{v['chosen']}**", "",
-                "| rule (calm, progress, sample[, T]) | success | makespan / greedy's | "
-                "deadlocks |", "|---|---|---|---|"]
-        for s in v["scores"][:top]:
-            slow = "–" if s["slowdown"] is None else f"{s['slowdown']:.3f}"
-            out.append(f"| {s['rule']} | {s['success_rate']:.3f} | {slow} | {s['deadlocks']} |")
+                *_score_rows(v["scores"][:top])]
         h = res["heldout_large"]
         out += ["", f"Large held-out set (paired makespan over the {h['paired_instances']} "
                 "instances every mode completed)", ""]
@@ -148,7 +177,7 @@ def markdown(results: list[dict[str, Any]], top: int = 5) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
-    p.add_argument("models", nargs="+", type=Path, help="model directories (card.json names "
+    p.add_argument("models", nargs="*", type=Path, help="model directories (card.json names "
                    "the MAIF task)")
     p.add_argument("--calm", nargs="+", type=int, default=list(CALM_STEPS))
     p.add_argument("--progress", nargs="+", type=int, default=list(PROGRESS_STEPS))
@@ -162,7 +191,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--planner-cache", type=Path, default=default_planner_cache())
     p.add_argument("--out", type=Path, help="JSON: every score and the held-out summaries")
     p.add_argument("--markdown", type=Path, help="the tables")
+    p.add_argument("--from-json", type=Path, metavar="JSON",
+                   help="evaluate nothing: write the tables of an earlier --out file")
     args = p.parse_args(argv)
+    if args.from_json is not None:
+        try:
+            results = json.loads(args.from_json.read_text())
+            text = markdown(results)
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            print(f"tune_stall_rule: --from-json: {e}", file=sys.stderr)
+            return 2
+        return _emit(text, args.markdown)
+    if not args.models:
+        print("tune_stall_rule: name at least one model directory (or --from-json)",
+              file=sys.stderr)
+        return 2
     try:
         grid = rule_grid(args.calm, args.progress, args.sample, args.temperatures)
         for t in args.refine_temperatures:
@@ -181,9 +224,12 @@ def main(argv: list[str] | None = None) -> int:
                             planner_cache=args.planner_cache))
         if args.out:  # after every model, so an interrupted sweep keeps what it finished
             write_json(args.out, results)
-    text = markdown(results)
-    if args.markdown:
-        args.markdown.write_text(text)
+    return _emit(markdown(results), args.markdown)
+
+
+def _emit(text: str, md: Path | None) -> int:
+    if md is not None:
+        md.write_text(text)
     print(text)
     return 0
 

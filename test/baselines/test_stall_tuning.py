@@ -11,7 +11,7 @@ from script_modules import load_script
 
 from sdhn_policy.stall_breaker import StallRule
 from sdhn_train.analysis.heldout_eval import InstanceResult
-from sdhn_train.analysis.stall_tuning import RuleScore, choose, ranked, rule_grid, score
+from sdhn_train.analysis.stall_tuning import RuleScore, choose, pool, ranked, rule_grid, score
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -94,6 +94,10 @@ def test_script_chooses_on_validation_and_reports_on_heldout(tmp_path: Path) -> 
         lo, hi = m["summary"]["success_ci95_maps"]
         assert lo <= m["summary"]["success_rate"] <= hi and m["makespan_ratio_paired"] >= 1.0
     assert f"chosen: **{v['chosen']}**" in md.read_text()
+    # the tables again from the JSON, evaluating nothing; two policies get a pooled choice
+    out.write_text(json.dumps([res, {**res, "model": "again"}]))
+    assert tune.main(["--from-json", str(out), "--markdown", str(md)]) == 0
+    assert "One rule for all: maif-solo-mappo, again" in md.read_text()
 
 
 def test_script_refuses_a_bad_grid_before_evaluating(capsys: pytest.CaptureFixture[str]) -> None:
@@ -102,3 +106,17 @@ def test_script_refuses_a_bad_grid_before_evaluating(capsys: pytest.CaptureFixtu
     assert "sample_steps" in capsys.readouterr().err
     assert tune.main([str(ROOT / "models" / "rware-3-mappo")]) == 2
     assert "not a MAIF task" in capsys.readouterr().err
+    assert tune.main([]) == 2 and "at least one model" in capsys.readouterr().err
+
+
+def test_pool_averages_the_rules_every_policy_scored() -> None:
+    a = [_scored(0.99, 1.10, calm=2), _scored(0.95, 1.00, calm=3), _scored(0.97, 1.0, calm=5)]
+    b = [_scored(0.91, 1.30, calm=3), _scored(0.97, 1.20, calm=2)]  # no calm=5 rule
+    pooled = pool([a, b])
+    assert [s.rule.calm_steps for s in pooled] == [2, 3]  # a's order, only the common rules
+    two, three = pooled
+    assert two.success_rate == pytest.approx(0.98) and two.slowdown == pytest.approx(1.15)
+    assert three.success_rate == pytest.approx(0.93) and three.slowdown == pytest.approx(1.15)
+    assert two.paired_instances == 990 + 970
+    assert choose(pooled).rule.calm_steps == 2
+    assert pool([]) == []

@@ -89,3 +89,22 @@ def ranked(scores: Iterable[RuleScore],
 def choose(scores: Iterable[RuleScore], tolerance: float = SUCCESS_TOLERANCE) -> RuleScore:
     """The fastest rule among those within ``tolerance`` of the best success rate."""
     return ranked(scores, tolerance)[0]
+
+
+def pool(per_policy: Sequence[Sequence[RuleScore]]) -> list[RuleScore]:
+    """One score per rule scored for every policy: mean success rate and mean slowdown over
+    the policies (each policy's set counts once, whatever its size), summed counts. The rule
+    ``choose`` takes from these is the best single default for all of them."""
+    if not per_policy:
+        return []
+    common = set.intersection(*({s.rule for s in scores} for scores in per_policy))
+    out = []
+    for rule in (s.rule for s in per_policy[0] if s.rule in common):
+        mine = [next(s for s in scores if s.rule == rule) for scores in per_policy]
+        slow = [s.slowdown for s in mine if s.slowdown is not None]
+        out.append(RuleScore(rule=rule,
+                             success_rate=float(np.mean([s.success_rate for s in mine])),
+                             slowdown=float(np.mean(slow)) if len(slow) == len(mine) else None,
+                             paired_instances=sum(s.paired_instances for s in mine),
+                             deadlocks=sum(s.deadlocks for s in mine)))
+    return out

@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
                    metavar="CALM,PROGRESS,SAMPLE[,T]",
                    help="greedy with stall breaking, as the actor nodes' break_stalls runs it "
                         "(sdhn_policy.stall_breaker); optional: the rule's steps and "
-                        "temperature (default 3,5,3,1)")
+                        f"temperature (default {StallRule().text()},1)")
     p.add_argument("--runtime", choices=("numpy", "torch"), default="numpy")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--wedge-steps", type=int, default=WEDGE_STEPS,

@@ -67,7 +67,7 @@ def test_reset_forgets_the_episode() -> None:
 
 
 def test_rule_parse_and_check() -> None:
-    assert StallRule.parse("3,5,3") == StallRule()
+    assert StallRule.parse("2,10,3") == StallRule()
     assert StallRule.parse("2, 4, 1, 0.5") == StallRule(2, 4, 1, 0.5)
     assert StallRule.parse(StallRule(2, 4, 1, 0.5).text()) == StallRule(2, 4, 1, 0.5)
     for bad in ["3,5", "3,5,x", "0,5,3", "3,5,3,0", "3,5,3,nan"]:

@@ -79,8 +79,8 @@ PARAMETERS = {
                                   "leaves a standstill; 1 = the policy itself", 0.01, 100.0)),
     "break_stalls": (False, boolean("greedy true, MAIF: stall breaking, a robot whose play has "
                                     "stalled samples a few actions (sdhn_policy.stall_breaker)")),
-    "stall_rule": ("3,5,3", string("break_stalls: CALM,PROGRESS,SAMPLE[,T], the rule's step "
-                                   "counts and sampling temperature")),
+    "stall_rule": (StallRule().text(), string("break_stalls: CALM,PROGRESS,SAMPLE[,T], the "
+                                              "rule's step counts and sampling temperature")),
     "seed": (0, integer("seed of the action sampler", 0)),
     "backend": ("numpy", string("policy runtime: 'numpy' or 'onnx' (onnxruntime); same actions")),
     "managed": (False, boolean("wait for lifecycle transitions (configure, activate) through the "

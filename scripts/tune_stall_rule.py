@@ -96,13 +96,14 @@ def tune(model: Path, grid: list[StallRule], *, refine: list[float], refine_top:
 
     inst = set_instances(task, REPORT_SET)
     plan = planner_makespans(task, REPORT_SET, planner_cache, progress=True)
-    modes: list[tuple[str, StallRule | None]] = [("greedy", None),
-                                                 (f"default rule {StallRule().text()}",
-                                                  StallRule())]
-    if best.rule != StallRule():
-        modes.append((f"chosen rule {best.rule.text()}", best.rule))
+    default = StallRule()
+    modes: list[tuple[str, StallRule | None]] = [("greedy", None)]
+    if best.rule == default:
+        modes.append((f"default rule {default.text()} (also the chosen)", default))
     else:
-        modes[1] = (f"default rule {StallRule().text()} (also the chosen)", StallRule())
+        modes += [(f"default rule {default.text()}", default),
+                  (f"chosen rule {best.rule.text()}", best.rule)]
+    checksum = set_checksum(inst)
     report = []
     for mode, rule in modes:
         recs = evaluate_set(rt, task, REPORT_SET, stall=rule)
@@ -110,7 +111,7 @@ def tune(model: Path, grid: list[StallRule], *, refine: list[float], refine_top:
         print(f"[report] {model.name} {task}/{REPORT_SET} {mode}: success "
               f"{summary['success_rate']:.3f}", flush=True)
         report.append({"mode": mode, "rule": None if rule is None else rule.text(),
-                       "task": task, "set": REPORT_SET, "set_checksum": set_checksum(inst),
+                       "task": task, "set": REPORT_SET, "set_checksum": checksum,
                        "summary": summary, "records": records_json(recs),
                        "planner_makespan": plan})
     paired_n, paired = paired_makespan_ratios(report)
@@ -126,19 +127,14 @@ def tune(model: Path, grid: list[StallRule], *, refine: list[float], refine_top:
             "heldout_large": {"paired_instances": paired_n, "modes": report}}
 
 
-def _scores(entries: list[dict[str, Any]]) -> list[RuleScore]:
-    return [RuleScore(rule=StallRule.parse(e["rule"]), success_rate=e["success_rate"],
-                      slowdown=e["slowdown"], paired_instances=e["paired_instances"],
-                      deadlocks=e["deadlocks"]) for e in entries]
-
-
 def pooled(results: list[dict[str, Any]], tolerance: float = SUCCESS_TOLERANCE
            ) -> dict[str, Any] | None:
     """The rules every policy was scored with, averaged over the policies, and the one rule
     that serves them all best (a candidate for the actors' default); None for one policy."""
     if len(results) < 2:
         return None
-    scores = ranked(pool([_scores(r["validation"]["scores"]) for r in results]), tolerance)
+    scores = ranked(pool([[RuleScore.from_json(e) for e in r["validation"]["scores"]]
+                         for r in results]), tolerance)
     return {"models": [r["model"] for r in results], "scores": [s.as_json() for s in scores],
             "chosen": scores[0].rule.text()}
 

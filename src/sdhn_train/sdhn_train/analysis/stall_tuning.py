@@ -55,6 +55,11 @@ class RuleScore:
     def as_json(self) -> dict[str, Any]:
         return {**asdict(self), "rule": self.rule.text()}
 
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> RuleScore:
+        """The inverse of ``as_json``."""
+        return cls(**{**data, "rule": StallRule.parse(data["rule"])})
+
 
 def score(rule: StallRule, recs: Sequence[InstanceResult],
           greedy: Sequence[InstanceResult]) -> RuleScore:

@@ -96,6 +96,21 @@ def test_resume_of_a_checkpoint_for_another_algorithm_is_one_line(run: Path,
     assert snapshot(d) == before
 
 
+def test_only_the_newest_checkpoints_are_kept_and_the_run_resumes(tmp_path: Path) -> None:
+    """A value-mixing checkpoint holds its replay buffer (GBs): log.keep_checkpoints bounds the
+    disk a long run takes, deleting the oldest only after the newest is complete."""
+    r = train(*SMALL, "--set", f"log.root={tmp_path}", "--run-name", "k", "--total-steps", "384",
+              "--set", "log.checkpoint_interval=64", "--set", "log.keep_checkpoints=2")
+    assert r.returncode == 0, r.stderr
+    stems = sorted(p.name for p in (tmp_path / "k" / "checkpoints").iterdir())
+    assert stems == [f"step_{s:012d}{x}" for s in (320, 384) for x in (".json", ".safetensors")]
+    r = train("--resume", str(tmp_path / "k"), "--total-steps", "448", "--no-progress",
+              "--set", "log.keep_checkpoints=1")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "k" / "checkpoints").iterdir()) == [
+        "step_000000000448.json", "step_000000000448.safetensors"]
+
+
 def test_a_reused_run_name_is_refused(run: Path) -> None:
     before = snapshot(run)
     r = train(*SMALL, "--set", f"log.root={run.parent}", "--run-name", "r",
@@ -203,6 +218,7 @@ BAD = {
     "inf-int": ["--set", "train.total_steps=inf"],
     "1e400-int": ["--set", "env.num_envs=1e400"],
     "fractional-epochs": ["--set", "ppo.epochs=2.7"],
+    "negative-keep-checkpoints": ["--set", "log.keep_checkpoints=-1"],
     "binary-config": ["--config", "{binary}"],
     "malformed-config": ["--config", "{malformed}"],
     "directory-config": ["--config", "{tmp}"],

@@ -17,6 +17,7 @@ one line naming it).
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 from pathlib import Path
 from typing import Any
@@ -46,7 +47,8 @@ SHORTCUTS = {  # --flag -> config field
 RUN_FILES = ("checkpoints", "config.yaml", "metrics.csv", "actor.safetensors", "summary.json")
 # Fields a resume may change: they change neither the networks, the optimiser nor the data.
 # log.root: a log directory carried to another machine (analysis/carry.py) resumes from there.
-RESUME_SAFE = frozenset({"train.total_steps", "log.checkpoint_interval", "log.progress", "log.root",
+RESUME_SAFE = frozenset({"train.total_steps", "log.checkpoint_interval", "log.keep_checkpoints",
+                         "log.progress", "log.root",
                          "log.tensorboard", "eval.interval", "train.threads",
                          "train.retain_freed_memory"})
 
@@ -175,6 +177,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         text = " ".join(str(e).split())
+        if isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT):
+            # Not the configuration's fault: say so, and how to go on from the last checkpoint.
+            print(f"train: the disk is full: {text}; free space (log.keep_checkpoints bounds "
+                  "what a run keeps), then continue with --resume RUN_DIR", file=sys.stderr)
+            return 1
         print(f"train: invalid configuration: {text}", file=sys.stderr)
         return 2
     except RankFailedError as e:  # another data-parallel rank failed (train.learner_processes)

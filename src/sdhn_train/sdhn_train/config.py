@@ -156,6 +156,8 @@ def validate(cfg: Config, resuming: bool = False) -> None:
     for path, v in {"eval.interval": cfg.eval.interval,
                     "log.checkpoint_interval": cfg.log.checkpoint_interval}.items():
         need(v >= 0, path, "an integer >= 0 (0 = never / end only)", v)
+    need(cfg.log.keep_checkpoints >= 0, "log.keep_checkpoints", "an integer >= 0 (0 = keep all)",
+         cfg.log.keep_checkpoints)
     need(cfg.env.max_steps is None or cfg.env.max_steps >= 1, "env.max_steps",
          "an integer >= 1 or null", cfg.env.max_steps)
     need(cfg.ppo.num_minibatches <= cfg.env.num_envs, "ppo.num_minibatches",

@@ -102,5 +102,8 @@ class LogConfig:
     root: str = opt("runs", "directory holding run directories")
     run_name: str | None = opt(None, "run directory name; null = <env>__<algo>__<seed>__<time>")
     checkpoint_interval: int = opt(200_000, "team env-steps between checkpoints (0 = end only)")
+    keep_checkpoints: int = opt(3, "newest checkpoints kept in the run directory, older ones "
+                                   "deleted as each is written (0 = keep all; a value-mixing "
+                                   "checkpoint holds its replay buffer, ~1.3 GB on maif-10)")
     progress: bool = opt(True, "show a progress bar")
     tensorboard: bool = opt(True, "write TensorBoard scalars")

@@ -94,18 +94,45 @@ class LifecycleClient:
         rclpy.try_shutdown(context=self.context)
 
 
+# The state a transition ends in when it succeeds (the lifecycle's primary states).
+TARGET_STATES = {"configure": "inactive", "cleanup": "unconfigured", "activate": "active",
+                 "deactivate": "inactive", "shutdown": "finalized"}
+# How long one request waits for its answer before the outcome is checked and, if it was lost,
+# the request is sent again. A server that discovers the client's request writer before its
+# response reader serves the request but drops the answer (rmw: "failed to send response
+# (timeout): client will not receive response"), so one unanswered request proves nothing.
+ANSWER_S = 3.0
+
+
 def change_state(client: LifecycleClient, node: str, transition: str,
                  timeout_s: float = 10.0) -> bool | None:
-    """True/False as the node answered; None when it did not answer within ``timeout_s``."""
+    """True/False as the node answered; None when it did not answer within ``timeout_s``.
+
+    An answer lost in discovery is recovered: the node's state tells whether the transition
+    took place (True), and a request that did not is sent again; a transition that fails
+    fails again and is answered once the response path is matched (False)."""
+    end = time.monotonic() + timeout_s
     if not client.wait_ready(node, timeout_s):
         return None
-    future = client.request(node, transition)
-    return bool(future.result().success) if client.wait(future, timeout_s) else None
+    while True:
+        future = client.request(node, transition)
+        if client.wait(future, min(ANSWER_S, max(0.0, end - time.monotonic()))):
+            return bool(future.result().success)
+        state = get_state(client, node, max(0.0, end - time.monotonic()))
+        if state is not None and state == TARGET_STATES[transition]:
+            return True
+        if state is None or time.monotonic() >= end:
+            return None
 
 
 def get_state(client: LifecycleClient, node: str, timeout_s: float = 10.0) -> str | None:
-    """The node's state label ('unconfigured', 'inactive', 'active', 'finalized'), or None."""
+    """The node's state label ('unconfigured', 'inactive', 'active', 'finalized'), or None.
+    Asked again every ``ANSWER_S`` while unanswered (a GetState changes nothing)."""
+    end = time.monotonic() + timeout_s
     if not client.wait_ready(node, timeout_s):
         return None
-    future = client.request_state(node)
-    return str(future.result().current_state.label) if client.wait(future, timeout_s) else None
+    while time.monotonic() < end:
+        future = client.request_state(node)
+        if client.wait(future, min(ANSWER_S, end - time.monotonic())):
+            return str(future.result().current_state.label)
+    return None

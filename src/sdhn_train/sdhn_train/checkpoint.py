@@ -235,8 +235,10 @@ def resolve_checkpoint(path: Path) -> Path | None:
 
 
 def prune_checkpoints(run_dir: Path, keep: int) -> None:
-    """Delete all but the newest ``keep`` checkpoints (each JSON first: a checkpoint without it
-    is never used)."""
+    """Delete all but the newest ``keep`` checkpoints (``log.keep_checkpoints``; 0 keeps all),
+    each JSON first: a checkpoint without it is never used."""
+    if keep <= 0:
+        return
     for old in checkpoints(run_dir)[:-keep]:
         old.with_suffix(".json").unlink(missing_ok=True)
         old.with_suffix(".safetensors").unlink(missing_ok=True)

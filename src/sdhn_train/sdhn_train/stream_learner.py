@@ -36,8 +36,6 @@ from sdhn_train.runs import seed_everything
 from sdhn_train.transitions import AssembledRollout
 from sdhn_train.warm_start import load_actor_into
 
-KEEP_CHECKPOINTS = 3
-
 
 @dataclass
 class HypergraphSample:
@@ -80,7 +78,7 @@ class StreamLearner:
         path = ckpt.checkpoint_path(self.run_dir, self.transitions)
         ckpt.save_checkpoint(path, arrays, meta)
         save_actor_file(self.run_dir / "actor.safetensors", self.weights())
-        ckpt.prune_checkpoints(self.run_dir, KEEP_CHECKPOINTS)
+        ckpt.prune_checkpoints(self.run_dir, self.cfg.log.keep_checkpoints)
         return path
 
     def load_checkpoint(self, path: Path) -> None:

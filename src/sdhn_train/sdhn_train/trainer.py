@@ -146,8 +146,7 @@ class Trainer:
         path = ckpt.checkpoint_path(self.run_dir, self.global_step)
         ckpt.save_checkpoint(path, arrays, meta)
         self.last_checkpoint = path
-        if self.cfg.log.keep_checkpoints:  # after the new one is complete: never fewer than one
-            ckpt.prune_checkpoints(self.run_dir, self.cfg.log.keep_checkpoints)
+        ckpt.prune_checkpoints(self.run_dir, self.cfg.log.keep_checkpoints)  # after it is complete
         return path
 
     def load_checkpoint(self, path: Path) -> None:

@@ -119,7 +119,7 @@ def change_state(client: LifecycleClient, node: str, transition: str,
         if client.wait(future, min(ANSWER_S, max(0.0, end - time.monotonic()))):
             return bool(future.result().success)
         state = get_state(client, node, max(0.0, end - time.monotonic()))
-        if state is not None and state == TARGET_STATES[transition]:
+        if state == TARGET_STATES[transition]:
             return True
         if state is None or time.monotonic() >= end:
             return None

@@ -158,6 +158,20 @@ def test_missing_robot_action_drops_the_step_and_cuts_the_stream() -> None:
     np.testing.assert_array_equal(second.prefix_obs[:, 0, 0], [obs_of(0, t, 0)[0] for t in (3, 4)])
 
 
+def test_a_late_message_to_a_dropped_step_is_taken_quietly_not_counted_again() -> None:
+    """The step is already one counted drop; its straggler is not a second one (a stale step is
+    a message to a step that was assembled, e.g. a replay)."""
+    lengths = [12]
+    late = Msg("action", 0, 2, 1)
+    msgs = [m for m in script(lengths) if m != late]
+    asm = assembler(rollout_steps=4, lag=4)
+    feed(asm, msgs, lengths)
+    assert feed(asm, [late, Msg("obs", 0, 2, 0)], lengths) == [None, None]
+    assert asm.stats.dropped == {DropKind.INCOMPLETE_STEP: 1}
+    assert asm.pending_records == 0
+    assert feed(asm, [Msg("action", 0, 3, 1)], lengths) == [DropKind.STALE_STEP]
+
+
 def test_gap_at_a_rollout_boundary_starts_the_next_rollout_afresh() -> None:
     lengths = [12]
     msgs = [m for m in script(lengths) if not (m.kind == "action" and m.step == 4 and m.robot == 0)]

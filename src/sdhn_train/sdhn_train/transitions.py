@@ -52,6 +52,9 @@ from sdhn_sim.drops import DropKind
 from sdhn_train.rollout import Rollout
 
 Key = tuple[int, int]  # (episode, step)
+# how many recent dropped or terminal steps are remembered, so that late messages to them are
+# taken quietly; far more than the steps in flight at once (settle_lag, a missed step's peers)
+ACCOUNTED_MEMORY = 256
 
 
 
@@ -144,7 +147,11 @@ class TransitionAssembler:
         self._cursor: Key | None = None  # keys below this are finished (assembled or dropped)
         self._buffer: list[Transition] = []
         self._last: Transition | None = None  # the last transition emitted (maybe packed)
-        self._closed: dict[Key, None] = {}  # recent terminal steps: late answers are ignored
+        # Recent steps already accounted for without a transition (terminal, or counted as a
+        # drop): a message for one that arrives late is expected, not an error. The simulator's
+        # topics are independent, so another robot's answer to a step can reach us after the
+        # state that tells us the step had a missed action and was dropped.
+        self._accounted: dict[Key, None] = {}
         self._segment_obs: list[npt.NDArray[np.float32]] = []  # this episode's steps so far
         self._segment_state: list[npt.NDArray[np.float32]] = []
         self._ready: list[AssembledRollout] = []
@@ -180,8 +187,6 @@ class TransitionAssembler:
             return DropKind.ACTION_OUT_OF_RANGE
         if not (np.isfinite(log_prob) and log_prob <= 1e-6):
             return DropKind.BAD_LOG_PROB
-        if (episode, step) in self._closed:
-            return None  # an answer to a terminal step: nothing to learn from, not an error
         rec, reason = self._record((episode, step))
         if rec is None:
             return reason
@@ -256,7 +261,9 @@ class TransitionAssembler:
         if self._cursor is not None and step == 0 and episode + 1 < self._cursor[0]:
             self.restart()  # the simulator restarted (its episode counter went back)
         if self._cursor is not None and key < self._cursor:
-            return None, DropKind.STALE_STEP
+            # a late message to a step already dropped or closed: nothing to learn from, and
+            # not an error (that step is already counted); else a replay of an assembled one
+            return None, None if key in self._accounted else DropKind.STALE_STEP
         rec = self._records.get(key)
         if rec is None:
             self._counter += 1
@@ -311,6 +318,8 @@ class TransitionAssembler:
         if cur is not None and key[0] == cur[0] and key[1] > cur[1]:
             d = self.stats.dropped
             d[DropKind.STEP_NEVER_SEEN] = d.get(DropKind.STEP_NEVER_SEEN, 0) + key[1] - cur[1]
+            for step in range(max(cur[1], key[1] - ACCOUNTED_MEMORY), key[1]):
+                self._remember_accounted((key[0], step))
 
     def _finish(self, key: Key, gap: bool, episode_end: bool) -> None:
         self._count_unseen(key)
@@ -319,10 +328,13 @@ class TransitionAssembler:
         if gap:
             self.stats.gaps += 1
             self._cut()
-        if episode_end:
-            self._closed[key] = None
-            while len(self._closed) > 64:
-                del self._closed[next(iter(self._closed))]
+        if gap or episode_end:
+            self._remember_accounted(key)
+
+    def _remember_accounted(self, key: Key) -> None:
+        self._accounted[key] = None
+        while len(self._accounted) > ACCOUNTED_MEMORY:
+            del self._accounted[next(iter(self._accounted))]
 
     def _emit(self, key: Key, rec: _Record, nxt: _Record) -> None:
         assert rec.state is not None and nxt.state is not None

@@ -229,6 +229,7 @@ class TransitionAssembler:
         """Forget every pending step (a new simulator run); the next rollout starts afresh."""
         self._cut()
         self._records.clear()
+        self._accounted.clear()  # the new run's keys start again at (0, 0)
         self._cursor = None
         self._segment_obs, self._segment_state = [], []
         self.stats.gaps += 1

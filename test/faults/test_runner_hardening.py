@@ -60,13 +60,14 @@ def runner(*args: str | Path, timeout: float = 60) -> subprocess.CompletedProces
 @pytest.fixture
 def cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str]]:
     """run_experiments' main in this process (fast; for the checks that start no training):
-    (exit code, stderr). Its SIGTERM handler is put back afterwards."""
+    (exit code, stderr). Its SIGTERM and SIGINT handlers are put back afterwards."""
     def call(*args: str | Path) -> tuple[int, str]:
-        previous = signal.getsignal(signal.SIGTERM)
+        previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
         try:
             rc = experiments_cli.main([str(a) for a in args])
         finally:
-            signal.signal(signal.SIGTERM, previous)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
         return rc, capsys.readouterr().err
 
     return call
@@ -315,6 +316,41 @@ def test_second_runner_on_a_logdir_in_use_is_refused_even_after_the_first_is_kil
         except ExperimentError:
             assert time.monotonic() < deadline, "the lock outlived every process holding it"
             time.sleep(0.1)
+    assert run_state(run, logdir) == "partial"
+
+
+def test_sigint_stops_a_runner_started_in_the_background_by_a_script(tmp_path: Path) -> None:
+    """`bash -c 'run_experiments ... &'` starts the runner with SIGINT ignored (a shell without
+    job control does that to background commands, and Python keeps it). `kill -INT` must still
+    stop it: exit 130 with the resume hint, its trainer stopped with it (the lock is free), the
+    run resumable rather than finished or lost."""
+    suite = _suite(tmp_path, GOOD.replace("total_steps: 256", "total_steps: 100000"))
+    logdir = tmp_path / "logs"
+    run = load_suite(suite, "quick")[0]
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited through exec, as from
+    try:                                                      # a shell without job control
+        proc = subprocess.Popen([sys.executable, "-m", "sdhn_train.analysis.experiments_cli",
+                                 str(suite), "--logdir", str(logdir), "--jobs", "1"], env=ENV,
+                                start_new_session=True, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not any(
+                (logdir / run.name / "checkpoints").glob("*.json")):
+            time.sleep(0.05)
+        assert any((logdir / run.name / "checkpoints").glob("*.json")), "the run never started"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "interrupted; rerun the same command to resume" in err, err
+    with LogdirLock(logdir):  # taken: no trainer of the stopped runner holds it any more
+        pass
     assert run_state(run, logdir) == "partial"
 
 

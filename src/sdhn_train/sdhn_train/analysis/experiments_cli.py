@@ -75,6 +75,10 @@ def main(argv: list[str] | None = None) -> int:
         raise KeyboardInterrupt  # stop the runs this process started, then exit
 
     signal.signal(signal.SIGTERM, _terminated)
+    # A shell without job control (`bash -c '... &'`, a script) starts background commands with
+    # SIGINT ignored, and Python keeps an inherited SIG_IGN: `kill -INT` would then be silently
+    # dropped by a runner that is meant to stop cleanly and resume. Take SIGINT explicitly.
+    signal.signal(signal.SIGINT, _terminated)
     try:
         runs = select_runs(load_suite(args.suite, args.budget), args.methods, args.seeds,
                            args.runs)

@@ -19,6 +19,7 @@ import yaml
 from sdhn_train.analysis.experiments import (
     DONE,
     ExperimentError,
+    list_line,
     load_suite,
     run_suite,
 )
@@ -136,6 +137,12 @@ def test_resume_after_kill(tmp_path: Path) -> None:
     proc.wait()
     assert (logdir / names[0] / DONE).exists(), "the first run did not finish in time"
     assert not (logdir / names[1] / DONE).exists(), "killed too late: the second run finished"
+    # --list says where each run stands, a partial one with its checkpoint's step
+    assert list_line(runs[0], logdir) == f"done     {names[0]}"
+    step = int(sorted(second_ckpt.glob("*.json"))[-1].stem.removeprefix("step_"))
+    assert list_line(runs[1], logdir) == (f"partial  {names[1]}  checkpoint at {step:,} of "
+                                          "768 steps")
+    assert list_line(runs[2], logdir) == f"new      {names[2]}"
     first_marker = (logdir / names[0] / DONE).read_text()
     first_log_size = (logdir / names[0] / "train.log").stat().st_size
 

@@ -226,6 +226,14 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     return found[-1] if found else None
 
 
+def checkpoint_step(stem: Path) -> int:
+    """The team step a checkpoint was written at, from its name (``step_<12 digits>``)."""
+    m = _NAME.match(stem.name + ".json")
+    if m is None:
+        raise ValueError(f"{stem} is not a checkpoint name (step_<12+ digits>)")
+    return int(m.group(1))
+
+
 def resolve_checkpoint(path: Path) -> Path | None:
     """A checkpoint stem from a stem, a .json/.safetensors file, or a run directory (its newest
     checkpoint; None if it has none)."""

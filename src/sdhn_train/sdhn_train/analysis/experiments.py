@@ -56,7 +56,7 @@ import yaml
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.yaml_io import YamlError, load_yaml
 from sdhn_train.algorithms.registry import ALGO_NAMES
-from sdhn_train.checkpoint import latest_checkpoint
+from sdhn_train.checkpoint import checkpoint_step, latest_checkpoint
 from sdhn_train.config import Config, ConfigError, set_field, validate
 from sdhn_train.evaluation import headline
 from sdhn_train.runs import PH_DIR
@@ -301,6 +301,19 @@ def run_state(run: RunSpec, logdir: Path) -> str:
     if (d / "metrics.csv").is_file() and latest_checkpoint(d) is not None:
         metrics_rows(d / "metrics.csv")  # it will be resumed: refuse garbage now, not midway
     return "partial"
+
+
+def list_line(run: RunSpec, logdir: Path) -> str:
+    """One line of ``--list``: the run's state and name, and for a partial run how far its
+    latest checkpoint got (where a resume starts), so a suite carried over days shows what is
+    left without opening every run directory."""
+    state = run_state(run, logdir)
+    line = f"{state:8s} {run.name}"
+    ckpt = latest_checkpoint(run_dir(run, logdir)) if state == "partial" else None
+    if ckpt is not None:
+        total = run.config(logdir).train.total_steps
+        line += f"  checkpoint at {checkpoint_step(ckpt):,} of {total:,} steps"
+    return line
 
 
 def metrics_rows(csv_path: Path) -> list[list[str]]:

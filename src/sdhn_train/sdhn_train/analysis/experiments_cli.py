@@ -15,8 +15,8 @@ from sdhn_train.analysis.experiments import (
     RunSpec,
     check_jobs,
     check_runs,
+    list_line,
     load_suite,
-    run_state,
     run_suite,
 )
 from sdhn_train.config import ConfigError
@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         logdir = args.logdir or Path("runs") / f"{runs[0].suite}-{args.budget}"
         if args.list:
             for r in runs:
-                print(f"{run_state(r, logdir):8s} {r.name}")
+                print(list_line(r, logdir))
             return 0
         if args.backend == "ray":
             from sdhn_train.analysis.ray_backend import run_suite_ray

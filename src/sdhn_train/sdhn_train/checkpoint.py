@@ -29,7 +29,7 @@ from sdhn_train.learners.base import Arrays, JsonDict, Learner
 
 CHECKPOINT_FORMAT = "sdhn-checkpoint/1"
 CHECKPOINT_DIR = "checkpoints"
-_NAME = re.compile(r"^step_(\d{12,})\.json$")
+_STEM = re.compile(r"^step_(\d{12,})$")  # a checkpoint is STEM.json + STEM.safetensors
 
 
 class CheckpointError(ValueError):
@@ -212,7 +212,7 @@ def checkpoints(run_dir: Path) -> list[Path]:
     for directory in (run_dir / CHECKPOINT_DIR, run_dir):
         if directory.is_dir():
             for p in directory.iterdir():
-                m = _NAME.match(p.name)
+                m = _STEM.match(p.stem) if p.suffix == ".json" else None
                 if m and p.with_suffix(".safetensors").is_file():
                     found.append((int(m.group(1)), p.with_suffix("")))
         if found:
@@ -228,7 +228,7 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
 
 def checkpoint_step(stem: Path) -> int:
     """The team step a checkpoint was written at, from its name (``step_<12 digits>``)."""
-    m = _NAME.match(stem.name + ".json")
+    m = _STEM.match(stem.name)
     if m is None:
         raise ValueError(f"{stem} is not a checkpoint name (step_<12+ digits>)")
     return int(m.group(1))

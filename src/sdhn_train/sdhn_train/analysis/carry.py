@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sdhn_train.analysis.experiments import DONE, SPEC, ExperimentError, check_name
-from sdhn_train.checkpoint import latest_checkpoint
+from sdhn_train.checkpoint import checkpoint_step, latest_checkpoint
 
 MAX_FILE_BYTES = 20 * 1024 * 1024
 """Above this a file is not carried (a checkpoint of the networks here is ~2 MB)."""
@@ -59,8 +59,7 @@ class RunProgress:
 
 def progress(run: Path) -> RunProgress:
     ckpt = latest_checkpoint(run)
-    digits = ckpt.name.rpartition("_")[2] if ckpt is not None else ""
-    step = int(digits) if digits.isdigit() else -1
+    step = checkpoint_step(ckpt) if ckpt is not None else -1
     return RunProgress(done=(run / DONE).is_file(), step=step)
 
 

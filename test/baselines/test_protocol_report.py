@@ -61,6 +61,9 @@ def test_report_verdicts_on_known_data(tmp_path: Path) -> None:
     assert "0.700" in line and line.endswith("| reproduced |")
     proto = json.loads((out / "protocol.json").read_text())
     assert proto["unfinished_runs"] == ["maif-10__qmix__s1"]
+    # the unfinished run is shown where it stands (its last evaluation, 0.2 at step 1,000)
+    assert proto["in_progress"][0]["score"] == 0.2
+    assert "| maif-10__qmix__s1 | 0.20 | 1,000 | 1,000 |" in (out / "protocol.md").read_text()
     # MAPPO's seeds complete round(10 * final) of 10: 5, 5, 5, 5 and 6, so 4.8 deadlocks
     mappo_row = next(x for x in (out / "protocol.md").read_text().splitlines()
                      if x.startswith("| MAPPO |"))

@@ -3,8 +3,8 @@ directory only:
 
     protocol_report LOGDIR OUTDIR [--no-absolute]      (scripts/protocol_report.py)
 
-Reads every finished run of LOGDIR (``DONE.json``; unfinished runs are listed, not counted) and
-writes to OUTDIR:
+Reads every finished run of LOGDIR (``DONE.json``; unfinished runs are listed with their latest
+evaluation, not counted) and writes to OUTDIR:
 
 - ``protocol.md`` / ``protocol.json``: per task and method, the final greedy score and the
   **absolute metric** (the run's final actor re-evaluated on episodes no training saw), each as
@@ -444,6 +444,35 @@ def _task_table(task: str, ms: dict[str, MethodData], reps: int
     return md, tjson
 
 
+def in_progress(runs: list[Run]) -> list[dict[str, Any]]:
+    """Where each unfinished run stands: its latest greedy evaluation and the step it was
+    taken at (a run resumes from its last checkpoint, at or after that step)."""
+    out = []
+    for r in sorted(runs, key=lambda r: (r.task, r.method, r.seed)):
+        if is_done(r):
+            continue
+        steps, values = r.series.get(domain_of(r.task).tag, (np.empty(0), np.empty(0)))
+        latest = len(steps) > 0
+        out.append({"run": r.path.name, "task": r.task, "method": r.method, "seed": r.seed,
+                    "total_steps": int(r.config["train"]["total_steps"]),
+                    "eval_step": int(steps[-1]) if latest else None,
+                    "score": float(values[-1]) if latest else None})
+    return out
+
+
+def in_progress_table(progress: list[dict[str, Any]]) -> list[str]:
+    md = ["## In progress (not counted)", "",
+          "Unfinished runs: their latest greedy evaluation during training (MAIF: the fixed "
+          "instances; RWARE: deliveries per episode), a measurement so far, not a result.", "",
+          "| run | latest evaluation | at step | of |", "|---|---|---|---|"]
+    for p in progress:
+        digits = domain_of(p["task"]).digits
+        score = "—" if p["score"] is None else f"{p['score']:.{digits}f}"
+        step = "—" if p["eval_step"] is None else f"{p['eval_step']:,}"
+        md.append(f"| {p['run']} | {score} | {step} | {p['total_steps']:,} |")
+    return [*md, ""]
+
+
 def report(logdir: Path, outdir: Path, planner_cache: Path | None,
            compute_absolute: bool = True, reps: int = ps.REPS) -> list[Path]:
     runs = load_runs(logdir)
@@ -463,8 +492,10 @@ def report(logdir: Path, outdir: Path, planner_cache: Path | None,
     for dom in (MAIF, RWARE):
         if any(domain_of(t) is dom for t in tasks):
             md += [dom.legend, ""]
-    if pending:
-        md += [f"Unfinished runs, not counted: {', '.join(pending)}", ""]
+    progress = in_progress(runs)
+    summary["in_progress"] = progress
+    if progress:
+        md += in_progress_table(progress)
     refs_cache = outdir / "reference_policies.json"
     for task in sorted(tasks):
         rows, tjson = _task_table(task, tasks[task], reps)

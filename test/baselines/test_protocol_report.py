@@ -16,15 +16,15 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _run(logdir: Path, method: str, algo: str, seed: int, *, final: float, ratio: float,
-         done: bool = True) -> None:
-    d = logdir / f"maif-10__{method}__s{seed}"
+         done: bool = True, task: str = "maif-10") -> None:
+    d = logdir / f"{task}__{method}__s{seed}"
     d.mkdir(parents=True)
-    cfg = {"env": {"name": "maif-10", "reward": "corrected", "max_steps": None},
+    cfg = {"env": {"name": task, "reward": "corrected", "max_steps": None},
            "algo": {"name": algo}, "train": {"total_steps": 1000, "seed": seed},
            "sdhn": {}}
     (d / "config.yaml").write_text(yaml.safe_dump(cfg))
     (d / "run.json").write_text(json.dumps({"suite": "synthetic", "method": method,
-                                            "task": "maif-10", "seed": seed}))
+                                            "task": task, "seed": seed}))
     rows = ["step,wall_time,tag,value"]
     for k, step in enumerate((500, 1000)):
         v = final * (k + 1) / 2
@@ -178,3 +178,19 @@ def test_too_few_seeds_give_no_verdict(tmp_path: Path) -> None:
     assert len(rows) == 2 and all(r.endswith("| inconclusive: 1 seed (a verdict needs 3) |")
                                   for r in rows)
     assert "| 0.00 (1 vs 1 seed) |" in (out / "protocol.md").read_text()
+
+
+def test_scaling_failure_claim(tmp_path: Path) -> None:
+    """'MAPPO fails on maif-16': one seed gives its bare score and no verdict; three seeds that
+    all complete 0.9 contradict it (the interval lies above 0.5)."""
+    logdir, out = tmp_path / "logs", tmp_path / "out"
+    _run(logdir, "mappo", "mappo", 1, final=0.9, ratio=1.0, task="maif-16")
+    report(logdir, out, None, compute_absolute=False, reps=200)
+    row = next(x for x in (out / "claims.md").read_text().splitlines() if "fails on" in x)
+    assert "MAPPO mean absolute success 0.90 |" in row
+    assert row.endswith("| inconclusive: 1 seed (a verdict needs 3) |")
+    for s in (2, 3):
+        _run(logdir, "mappo", "mappo", s, final=0.9, ratio=1.0, task="maif-16")
+    report(logdir, out, None, compute_absolute=False, reps=200)
+    row = next(x for x in (out / "claims.md").read_text().splitlines() if "fails on" in x)
+    assert row.endswith("| contradicted |")

@@ -339,7 +339,8 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
                     "reproduced" if est.high < 0.5 else "contradicted" if est.low >= 0.5 else
                     "inconclusive at this budget")
                 rows.append({"claim": f"{label(base)} fails on {task} (success below 0.5)",
-                             "measurement": f"{label(base)} mean {w} success {est.fmt()}",
+                             "measurement": f"{label(base)} mean {w} success "
+                                            f"{_est(est, len(scores))}",
                              "budget": _budget(ms[base]),
                              "verdict": v})
     return rows

@@ -482,8 +482,10 @@ def report(logdir: Path, outdir: Path, planner_cache: Path | None,
         raise FigureError(f"{logdir}: no finished run with a greedy evaluation (DONE.json and "
                           "eval/success_rate or eval/deliveries in metrics.csv)")
     outdir.mkdir(parents=True, exist_ok=True)
-    pending = sorted(r.path.name for r in runs if not is_done(r))
-    summary: dict[str, Any] = {"logdir": logdir.name, "unfinished_runs": pending, "tasks": {}}
+    progress = in_progress(runs)
+    summary: dict[str, Any] = {"logdir": logdir.name,
+                               "unfinished_runs": sorted(p["run"] for p in progress),
+                               "in_progress": progress, "tasks": {}}
     md = [f"# Protocol report: {logdir.name}", "",
           "Final greedy score per method, IQM and mean over seeds with 95 % stratified "
           "bootstrap intervals (rliable); one seed has no interval. P(SDHN > it): the "
@@ -493,8 +495,6 @@ def report(logdir: Path, outdir: Path, planner_cache: Path | None,
     for dom in (MAIF, RWARE):
         if any(domain_of(t) is dom for t in tasks):
             md += [dom.legend, ""]
-    progress = in_progress(runs)
-    summary["in_progress"] = progress
     if progress:
         md += in_progress_table(progress)
     refs_cache = outdir / "reference_policies.json"

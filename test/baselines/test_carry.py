@@ -66,3 +66,29 @@ def test_carry_skips_finished_and_resumes_unfinished_elsewhere(tmp_path: Path) -
 
 def test_carry_refuses_a_missing_log_directory(tmp_path: Path) -> None:
     assert main(["save", str(tmp_path / "nope"), str(tmp_path / "dest")]) == 2
+
+
+def test_carry_leaves_out_a_checkpoint_too_large_to_carry_whole(tmp_path: Path) -> None:
+    # A QMIX checkpoint holds its replay buffer (1.3 GB): its weights stay behind, so its JSON
+    # half must too, and the run is carried as one that starts again.
+    logdir = tmp_path / "logs"
+    run = logdir / "maif-tiny__qmix__s1"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "run.json").write_text("{}")
+    (run / "metrics.csv").write_text("step\n")
+    stem = run / "checkpoints" / "step_000000001024"
+    stem.with_suffix(".json").write_text("{}")
+    stem.with_suffix(".safetensors").write_bytes(b"\0" * 4096)
+    assert progress(run).step == 1024
+
+    carried = tmp_path / "carry"
+    lines = save(logdir, carried, max_file_bytes=1000)
+    assert lines[0].startswith(f"{run.name}: no checkpoint"), lines
+    assert any("starts again from scratch" in x for x in lines), lines
+    assert not (carried / run.name / "checkpoints").exists()
+    assert (carried / run.name / "metrics.csv").is_file()
+    assert '"no checkpoint"' in (carried / MANIFEST).read_text()
+
+    # Under the limit the pair goes together.
+    save(logdir, carried, max_file_bytes=10_000)
+    assert progress(carried / run.name).step == 1024

@@ -14,7 +14,9 @@ What is carried, per run directory (``LOGDIR/<task>__<method>__s<seed>/``):
 - an unfinished run's newest checkpoint (``checkpoints/step_<n>.json`` + ``.safetensors``);
 - P_H snapshots (``hypergraph/``) of finished runs, which the figures read.
 
-A file over ``MAX_FILE_BYTES`` is left out and named. ``restore`` never replaces newer
+A file over ``MAX_FILE_BYTES`` is left out and named; a checkpoint is carried whole or not at all
+(a QMIX checkpoint holds its 1.3 GB replay buffer), so such a run starts again elsewhere and the
+manifest says so. ``restore`` never replaces newer
 progress: a run is copied back only if the log directory lacks it, or holds it at an earlier
 checkpoint, or unfinished where the carried copy is finished.
 """
@@ -70,8 +72,10 @@ def run_dirs(logdir: Path) -> list[Path]:
     return sorted(d for d in logdir.iterdir() if d.is_dir() and (d / SPEC).is_file())
 
 
-def _carried_files(run: Path, done: bool) -> tuple[list[Path], list[str]]:
-    """(files to carry, relative to ``run``; files left out, with why)."""
+def _carried_files(run: Path, done: bool,
+                   max_bytes: int) -> tuple[list[Path], list[str], bool]:
+    """(files to carry, relative to ``run``; files left out, with why; whether the run's
+    checkpoint is among the carried files)."""
     files: list[Path] = []
     left: list[str] = []
     for f in sorted(run.iterdir()):
@@ -81,19 +85,26 @@ def _carried_files(run: Path, done: bool) -> tuple[list[Path], list[str]]:
         snaps = run / SNAPSHOT_DIR
         if snaps.is_dir():
             files += sorted(f.relative_to(run) for f in snaps.glob("ph_*.npz") if f.is_file())
-    else:
-        ckpt = latest_checkpoint(run)
-        if ckpt is not None:
-            files += [ckpt.with_suffix(".json").relative_to(run),
-                      ckpt.with_suffix(".safetensors").relative_to(run)]
     kept = []
     for rel in files:
         size = (run / rel).stat().st_size
-        if size > MAX_FILE_BYTES:
-            left.append(f"{run.name}/{rel} ({size:,} bytes > {MAX_FILE_BYTES:,})")
+        if size > max_bytes:
+            left.append(f"{run.name}/{rel} ({size:,} bytes > {max_bytes:,})")
         else:
             kept.append(rel)
-    return kept, left
+    ckpt = None if done else latest_checkpoint(run)
+    if ckpt is None:
+        return kept, left, False
+    pair = [ckpt.with_suffix(".json").relative_to(run),
+            ckpt.with_suffix(".safetensors").relative_to(run)]
+    big = [(rel, (run / rel).stat().st_size) for rel in pair]
+    big = [(rel, size) for rel, size in big if size > max_bytes]
+    if big:
+        # Half a checkpoint resumes nothing: carry neither half, and say the run restarts.
+        left += [f"{run.name}/{rel} ({size:,} bytes > {max_bytes:,}; the run starts again "
+                 f"from scratch elsewhere)" for rel, size in big]
+        return kept, left, False
+    return kept + pair, left, True
 
 
 def _copy_run(src: Path, dst: Path, files: list[Path]) -> None:
@@ -116,7 +127,7 @@ def _copy_run(src: Path, dst: Path, files: list[Path]) -> None:
         tmp.rename(dst)
 
 
-def save(logdir: Path, dest: Path) -> list[str]:
+def save(logdir: Path, dest: Path, max_file_bytes: int = MAX_FILE_BYTES) -> list[str]:
     """Carry every run of ``logdir`` into ``dest`` (replacing what ``dest`` held for those runs;
     runs only in ``dest`` stay). Returns one line per run and per file left out."""
     lines = []
@@ -125,11 +136,13 @@ def save(logdir: Path, dest: Path) -> list[str]:
     for run in run_dirs(logdir):
         check_name(run.name, f"{run}")  # a path component we may write
         prog = progress(run)
-        files, left = _carried_files(run, prog.done)
+        files, left, with_checkpoint = _carried_files(run, prog.done, max_file_bytes)
         _copy_run(run, dest / run.name, files)
         size = sum((run / f).stat().st_size for f in files)
-        manifest[run.name] = prog.describe()
-        lines.append(f"{run.name}: {prog.describe()}, {len(files)} files, {size / 1e6:.1f} MB")
+        # What the carried copy holds, which is what the next machine gets.
+        carried = prog if prog.done or with_checkpoint else RunProgress(done=False, step=-1)
+        manifest[run.name] = carried.describe()
+        lines.append(f"{run.name}: {carried.describe()}, {len(files)} files, {size / 1e6:.1f} MB")
         lines += [f"  left out: {x}" for x in left]
     old = {}
     if (dest / MANIFEST).is_file():

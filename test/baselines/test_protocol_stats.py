@@ -54,6 +54,22 @@ def test_probability_of_improvement_known_values() -> None:
     assert unsure.low < 0.5 < unsure.high
 
 
+def test_intervals_are_reproducible_whatever_ran_before() -> None:
+    # rliable resamples from NumPy's global RNG: the report must not depend on who used it last
+    # (one command regenerates a suite's tables), and must leave the global RNG as it found it.
+    x = np.array([0.90, 0.85, 0.92, 0.88, 0.91, 0.87, 0.93, 0.89, 0.86, 0.90])
+    y = np.array([0.91, 0.90, 0.92, 0.90, 0.905])
+    first = ps.probability_of_improvement(x, y, reps=500)
+    np.random.seed(123)  # noqa: NPY002 (rliable's global RNG)
+    np.random.rand(17)  # noqa: NPY002 (rliable's global RNG)
+    before = np.random.get_state()[1].copy()  # noqa: NPY002 (rliable's global RNG)
+    assert ps.probability_of_improvement(x, y, reps=500) == first
+    # ...and the seeding is undone
+    assert np.array_equal(np.random.get_state()[1], before)  # noqa: NPY002
+    assert ps.interval_estimates({"x": x}, reps=500) == ps.interval_estimates({"x": x}, reps=500)
+    assert ps.probability_of_improvement(x, y, reps=500, seed=1) != first  # the seed matters
+
+
 def test_ratio_of_means() -> None:
     r = ps.ratio_of_means([2.0, 2.0, 2.0], [4.0, 4.0, 4.0], reps=200)
     assert (r.low, r.point, r.high) == pytest.approx((0.5, 0.5, 0.5))

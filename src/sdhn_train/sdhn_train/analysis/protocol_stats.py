@@ -49,11 +49,19 @@ class Estimate:
 def _bootstrap(data: dict[str, Any], func: Callable[..., FArray], reps: int,
                seed: int) -> tuple[dict[str, Any], dict[str, Any]]:
     """rliable's ``get_interval_estimates`` (percentile intervals, 95 %), seeded. rliable hands
-    arch a legacy RandomState, which arch 7 accepts with a FutureWarning: silenced here."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        return rly.get_interval_estimates(data, func, reps=reps,
-                                          random_state=np.random.RandomState(seed))
+    arch a legacy RandomState, which arch 7 accepts with a FutureWarning: silenced here. Its
+    stratified bootstraps draw their resamples from NumPy's global RNG (``np.random.choice`` in
+    ``update_indices``), not from that RandomState, so the global RNG is seeded for the call and
+    put back after it: the same scores give the same interval, whatever ran before."""
+    saved = np.random.get_state()  # noqa: NPY002 (rliable's global RNG)
+    np.random.seed(seed)  # noqa: NPY002 (rliable's global RNG)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)
+            return rly.get_interval_estimates(data, func, reps=reps,
+                                              random_state=np.random.RandomState(seed))
+    finally:
+        np.random.set_state(saved)  # noqa: NPY002 (rliable's global RNG)
 
 
 def _scores(x: npt.ArrayLike) -> FArray:

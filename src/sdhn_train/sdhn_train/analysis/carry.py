@@ -72,12 +72,23 @@ def run_dirs(logdir: Path) -> list[Path]:
     return sorted(d for d in logdir.iterdir() if d.is_dir() and (d / SPEC).is_file())
 
 
-def _carried_files(run: Path, done: bool,
-                   max_bytes: int) -> tuple[list[Path], list[str], bool]:
-    """(files to carry, relative to ``run``; files left out, with why; whether the run's
-    checkpoint is among the carried files)."""
-    files: list[Path] = []
+def _split_by_size(run: Path, files: list[Path], max_bytes: int,
+                   why: str = "") -> tuple[list[Path], list[str]]:
+    """(the files within ``max_bytes``; the others, named with their size and ``why``)."""
+    kept: list[Path] = []
     left: list[str] = []
+    for rel in files:
+        size = (run / rel).stat().st_size
+        if size > max_bytes:
+            left.append(f"{run.name}/{rel} ({size:,} bytes > {max_bytes:,}{why})")
+        else:
+            kept.append(rel)
+    return kept, left
+
+
+def _carried_files(run: Path, done: bool, max_bytes: int) -> tuple[list[Path], list[str]]:
+    """(files to carry, relative to ``run``; files left out, with why)."""
+    files: list[Path] = []
     for f in sorted(run.iterdir()):
         if f.is_file() and not f.is_symlink() and not f.name.startswith(SKIP_PREFIXES):
             files.append(f.relative_to(run))
@@ -85,26 +96,17 @@ def _carried_files(run: Path, done: bool,
         snaps = run / SNAPSHOT_DIR
         if snaps.is_dir():
             files += sorted(f.relative_to(run) for f in snaps.glob("ph_*.npz") if f.is_file())
-    kept = []
-    for rel in files:
-        size = (run / rel).stat().st_size
-        if size > max_bytes:
-            left.append(f"{run.name}/{rel} ({size:,} bytes > {max_bytes:,})")
-        else:
-            kept.append(rel)
+    kept, left = _split_by_size(run, files, max_bytes)
     ckpt = None if done else latest_checkpoint(run)
-    if ckpt is None:
-        return kept, left, False
-    pair = [ckpt.with_suffix(".json").relative_to(run),
-            ckpt.with_suffix(".safetensors").relative_to(run)]
-    big = [(rel, (run / rel).stat().st_size) for rel in pair]
-    big = [(rel, size) for rel, size in big if size > max_bytes]
-    if big:
-        # Half a checkpoint resumes nothing: carry neither half, and say the run restarts.
-        left += [f"{run.name}/{rel} ({size:,} bytes > {max_bytes:,}; the run starts again "
-                 f"from scratch elsewhere)" for rel, size in big]
-        return kept, left, False
-    return kept + pair, left, True
+    if ckpt is not None:
+        pair = [ckpt.with_suffix(".json").relative_to(run),
+                ckpt.with_suffix(".safetensors").relative_to(run)]
+        within, over = _split_by_size(run, pair, max_bytes,
+                                      "; the run starts again from scratch elsewhere")
+        # Half a checkpoint resumes nothing: carry both halves or neither.
+        kept += within if not over else []
+        left += over
+    return kept, left
 
 
 def _copy_run(src: Path, dst: Path, files: list[Path]) -> None:
@@ -135,12 +137,10 @@ def save(logdir: Path, dest: Path, max_file_bytes: int = MAX_FILE_BYTES) -> list
     manifest: dict[str, str] = {}
     for run in run_dirs(logdir):
         check_name(run.name, f"{run}")  # a path component we may write
-        prog = progress(run)
-        files, left, with_checkpoint = _carried_files(run, prog.done, max_file_bytes)
+        files, left = _carried_files(run, progress(run).done, max_file_bytes)
         _copy_run(run, dest / run.name, files)
         size = sum((run / f).stat().st_size for f in files)
-        # What the carried copy holds, which is what the next machine gets.
-        carried = prog if prog.done or with_checkpoint else RunProgress(done=False, step=-1)
+        carried = progress(dest / run.name)  # what the next machine gets, read off the copy
         manifest[run.name] = carried.describe()
         lines.append(f"{run.name}: {carried.describe()}, {len(files)} files, {size / 1e6:.1f} MB")
         lines += [f"  left out: {x}" for x in left]

@@ -6,6 +6,8 @@ replaces newer progress."""
 from __future__ import annotations
 
 import io
+import json
+import shutil
 from pathlib import Path
 
 import yaml
@@ -92,3 +94,24 @@ def test_carry_leaves_out_a_checkpoint_too_large_to_carry_whole(tmp_path: Path) 
     # Under the limit the pair goes together.
     save(logdir, carried, max_file_bytes=10_000)
     assert progress(carried / run.name).step == 1024
+
+
+def test_carry_manifest_keeps_earlier_runs_but_forgets_removed_copies(tmp_path: Path) -> None:
+    # A run carried earlier from another log directory stays listed; one whose carried copy was
+    # deleted (a run abandoned rather than carried on) must not stay in the manifest.
+    def make_run(logdir: Path, name: str) -> None:
+        run = logdir / name
+        run.mkdir(parents=True)
+        (run / "run.json").write_text("{}")
+        (run / "metrics.csv").write_text("step\n")
+
+    carried = tmp_path / "carry"
+    make_run(tmp_path / "first", "maif-tiny__sdhn__s1")
+    make_run(tmp_path / "first", "maif-tiny__qmix__s2")
+    save(tmp_path / "first", carried)
+    shutil.rmtree(carried / "maif-tiny__qmix__s2")
+
+    make_run(tmp_path / "second", "maif-tiny__mappo__s1")
+    save(tmp_path / "second", carried)
+    listed = json.loads((carried / MANIFEST).read_text())["runs"]
+    assert sorted(listed) == ["maif-tiny__mappo__s1", "maif-tiny__sdhn__s1"]

@@ -150,7 +150,8 @@ def save(logdir: Path, dest: Path, max_file_bytes: int = MAX_FILE_BYTES) -> list
             old = json.loads((dest / MANIFEST).read_text())["runs"]
         except (ValueError, KeyError, TypeError):
             old = {}
-    runs = {**old, **manifest}
+    # entries of runs whose copy was since removed from dest would promise what is not there
+    runs = {**{k: v for k, v in old.items() if (dest / k).is_dir()}, **manifest}
     (dest / MANIFEST).write_text(json.dumps({"runs": runs}, indent=1,
                                             sort_keys=True) + "\n")
     return lines

@@ -134,24 +134,17 @@ def save(logdir: Path, dest: Path, max_file_bytes: int = MAX_FILE_BYTES) -> list
     runs only in ``dest`` stay). Returns one line per run and per file left out."""
     lines = []
     dest.mkdir(parents=True, exist_ok=True)
-    manifest: dict[str, str] = {}
     for run in run_dirs(logdir):
         check_name(run.name, f"{run}")  # a path component we may write
         files, left = _carried_files(run, progress(run).done, max_file_bytes)
         _copy_run(run, dest / run.name, files)
         size = sum((run / f).stat().st_size for f in files)
         carried = progress(dest / run.name)  # what the next machine gets, read off the copy
-        manifest[run.name] = carried.describe()
         lines.append(f"{run.name}: {carried.describe()}, {len(files)} files, {size / 1e6:.1f} MB")
         lines += [f"  left out: {x}" for x in left]
-    old = {}
-    if (dest / MANIFEST).is_file():
-        try:
-            old = json.loads((dest / MANIFEST).read_text())["runs"]
-        except (ValueError, KeyError, TypeError):
-            old = {}
-    # entries of runs whose copy was since removed from dest would promise what is not there
-    runs = {**{k: v for k, v in old.items() if (dest / k).is_dir()}, **manifest}
+    # The manifest describes what dest holds now: earlier runs carried from other log
+    # directories stay, copies removed since drop out.
+    runs = {r.name: progress(r).describe() for r in run_dirs(dest)}
     (dest / MANIFEST).write_text(json.dumps({"runs": runs}, indent=1,
                                             sort_keys=True) + "\n")
     return lines

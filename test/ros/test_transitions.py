@@ -158,6 +158,26 @@ def test_missing_robot_action_drops_the_step_and_cuts_the_stream() -> None:
     np.testing.assert_array_equal(second.prefix_obs[:, 0, 0], [obs_of(0, t, 0)[0] for t in (3, 4)])
 
 
+def test_incomplete_steps_name_what_they_lacked_and_count_the_run_without_transitions() -> None:
+    """A stream that stops arriving (robot 2's actions from step 3 to 10, the state of steps 9
+    and 10) names itself; the run of incomplete steps grows until the next transition."""
+    lengths = [30]
+
+    def withheld(m: Msg) -> bool:
+        return (((m.kind, m.robot) == ("action", 2) and 3 <= m.step <= 10)
+                or (m.kind == "state" and m.step in (9, 10)))
+    msgs = [m for m in script(lengths) if not withheld(m)]
+    asm = assembler(rollout_steps=4, lag=4)
+    feed(asm, [m for m in msgs if m.step <= 10], lengths)
+    asm.flush()
+    st = asm.stats
+    assert st.missing == {"action 2": 8, "state": 2}
+    assert st.incomplete_run == st.dropped[DropKind.INCOMPLETE_STEP] == 8
+    assert st.transitions == 3  # steps 0-2
+    feed(asm, [m for m in msgs if m.step > 10], lengths)
+    assert st.transitions > 3 and st.incomplete_run == 0  # steps 11+ are whole again
+
+
 def test_a_late_message_to_a_dropped_step_is_taken_quietly_not_counted_again() -> None:
     """The step is already one counted drop; its straggler is not a second one (a stale step is
     a message to a step that was assembled, e.g. a replay)."""

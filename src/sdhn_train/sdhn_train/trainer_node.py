@@ -44,6 +44,7 @@ from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
 from rclpy.context import Context
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
+from rclpy.subscription import Subscription
 from rclpy.time import Time
 
 from sdhn_msgs.msg import (
@@ -80,6 +81,12 @@ from sdhn_train.transitions import TransitionAssembler
 QUEUE_ROLLOUTS = 4  # rollouts waiting for the pipe (the learner's receiver drains it at once)
 STATUS_PERIOD_S = 2.0
 LAG_PERIOD_S = 0.1
+# Out of step: this many incomplete steps in a row (two full settle windows) with no transition
+# between them. Seen once after a restart under load (a restarted trainer joining a loop at ~500
+# steps/s): every step lacked something, for minutes, and nothing was learned. Fresh readers
+# (new DDS endpoints, matched anew) are the recovery; at most once per RESUBSCRIBE_EVERY_S.
+OUT_OF_STEP_STEPS = 2 * STEP_DEPTH
+RESUBSCRIBE_EVERY_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -238,13 +245,10 @@ class TrainerNode(Node):
         self._obs_topics = [topics.absolute(self.ns, topics.robot_obs(i)) for i in range(n)]
         self._action_topics = [topics.absolute(self.ns, topics.robot_action(i))
                                for i in range(n)]
-        for i in range(n):
-            self.create_subscription(RobotObservation, self._obs_topics[i],
-                                     functools.partial(self.on_obs, i), STEP, raw=True)
-            self.create_subscription(RobotAction, self._action_topics[i],
-                                     functools.partial(self.on_action, i), STEP, raw=True)
-        self.create_subscription(TeamState, topics.absolute(self.ns, topics.STATE), self.on_state,
-                                 STEP, raw=True)
+        self._step_subs: list[Subscription] = []
+        self.resubscribed = 0
+        self._t_resubscribed = -float("inf")
+        self._subscribe_steps()
         self.create_subscription(EpisodeSummary, topics.absolute(self.ns, topics.EPISODE),
                                  self.on_episode, STEP)
         self.create_timer(LAG_PERIOD_S, self.on_lag_timer)
@@ -342,6 +346,42 @@ class TrainerNode(Node):
         if self._lag_due is not None:
             self._lag_max = max(self._lag_max, now - self._lag_due)
         self._lag_due = now + LAG_PERIOD_S
+        self.check_in_step(now)
+
+    def _subscribe_steps(self) -> None:
+        """(Re)create the subscriptions of the step topics (N obs, N actions, the state)."""
+        for sub in self._step_subs:
+            self.destroy_subscription(sub)
+        n = self.assembler.n
+        subs = []
+        for i in range(n):
+            subs.append(self.create_subscription(
+                RobotObservation, self._obs_topics[i], functools.partial(self.on_obs, i), STEP,
+                raw=True))
+            subs.append(self.create_subscription(
+                RobotAction, self._action_topics[i], functools.partial(self.on_action, i), STEP,
+                raw=True))
+        subs.append(self.create_subscription(
+            TeamState, topics.absolute(self.ns, topics.STATE), self.on_state, STEP, raw=True))
+        self._step_subs = subs
+
+    def check_in_step(self, now: float) -> bool:
+        """Re-create the step subscriptions if the trainer is out of step with the team (see
+        OUT_OF_STEP_STEPS); returns whether it did. The warning names what the steps lacked."""
+        st = self.assembler.stats
+        if (st.incomplete_run < OUT_OF_STEP_STEPS
+                or now - self._t_resubscribed < RESUBSCRIBE_EVERY_S):
+            return False
+        lacking = sorted(st.missing.items(), key=lambda kv: -kv[1])[:6]
+        self.get_logger().warning(
+            f"out of step: the last {st.incomplete_run} steps were all incomplete and none was "
+            f"a transition (lacking so far: {dict(lacking)}); re-creating the step "
+            "subscriptions")
+        self._subscribe_steps()
+        self.resubscribed += 1
+        self._t_resubscribed = now
+        st.incomplete_run = 0
+        return True
 
     def _queue_ready(self) -> None:
         for kind, count in self.assembler.stats.dropped.items():
@@ -389,6 +429,7 @@ class TrainerNode(Node):
                 "rollouts": st.rollouts, "gaps": st.gaps,
                 "transitions_learned": self.transitions_learned,
                 "pending": self.assembler.pending_records, "dropped": drops,
+                "missing": dict(st.missing), "resubscribed": self.resubscribed,
                 "executor_lag_ms": round(lag * 1e3, 1),
                 "executor_lag_max_ms": round(self._lag_worst * 1e3, 1),
                 "weights_published": [[v, round(t_end, 4), round(t_pub, 4)]
@@ -399,7 +440,8 @@ class TrainerNode(Node):
         write_status("trainer", s)
         line = (f"status: version={s['version']} transitions={s['transitions']} "
                 f"learned={s['transitions_learned']} rollouts={s['rollouts']} gaps={s['gaps']} "
-                f"pending={s['pending']} dropped={s['dropped']}")
+                f"pending={s['pending']} dropped={s['dropped']}"
+                + (f" resubscribed={s['resubscribed']}" if s["resubscribed"] else ""))
         if line != self._last_status:
             self._last_status = line
             self.get_logger().info(line)

@@ -125,6 +125,12 @@ class AssemblerStats:
     rollouts: int = 0
     gaps: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
+    # What the incomplete steps lacked ('state', 'obs 2', 'action 0', ...): a stream that never
+    # arrives names itself here instead of hiding in the incomplete_step count.
+    missing: dict[str, int] = field(default_factory=dict)
+    # Incomplete steps in a row since the last transition: a trainer out of step with the team
+    # (every step torn, nothing learned) shows as this growing without bound.
+    incomplete_run: int = 0
 
 
 class TransitionAssembler:
@@ -299,9 +305,22 @@ class TransitionAssembler:
             if rec.missed or self._settled(rec):
                 cause = DropKind.MISSED_ACTION if rec.missed else DropKind.INCOMPLETE_STEP
                 self.stats.dropped[cause] = self.stats.dropped.get(cause, 0) + 1
+                if not rec.missed:
+                    self._count_missing(rec)
                 self._finish(key, gap=True, episode_end=False)
                 continue
             break
+
+    def _count_missing(self, rec: _Record) -> None:
+        m = self.stats.missing
+        parts = [] if rec.state is not None else ["state"]
+        parts += [f"obs {i}" for i in np.flatnonzero(~rec.have_obs)]
+        parts += [f"action {i}" for i in np.flatnonzero(~rec.have_action)]
+        if not parts:
+            parts = ["next step"]  # complete itself, but the step after it never was
+        for part in parts:
+            m[part] = m.get(part, 0) + 1
+        self.stats.incomplete_run += 1
 
     def _cut(self) -> None:
         """The stream breaks after the last emitted transition: mark it truncated (the learner
@@ -350,6 +369,7 @@ class TransitionAssembler:
         del self._records[key]
         self._cursor = (key[0], key[1] + 1)
         self.stats.transitions += 1
+        self.stats.incomplete_run = 0
         if len(self._buffer) >= self.rollout_steps:
             self._ready.append(self._pack(self._buffer))
             self._buffer = []

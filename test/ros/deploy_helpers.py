@@ -56,6 +56,15 @@ def actor_cmd(i: int, n: int, ns: str = TEAM_NS, **params: Any) -> list[str]:
     return args
 
 
+def trainer_cmd(run_dir: Path, config: Path, env: str = "maif-tiny", **params: Any) -> list[str]:
+    """The trainer node in the default team namespace unless ``team_ns`` is given."""
+    args = [*ROS2, "run", "sdhn_train", "trainer", "--ros-args", "-p", f"env:={env}",
+            "-p", f"run_dir:={run_dir}", "-p", f"config:={config}"]
+    for k, v in params.items():
+        args += ["-p", f"{k}:={_ros(v)}"]
+    return args
+
+
 def _ros(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"

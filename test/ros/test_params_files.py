@@ -7,6 +7,7 @@ declare."""
 from __future__ import annotations
 
 import subprocess
+import time
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +25,7 @@ from sdhn_bringup.supervisor import PARAMS_FILE, graph, load_config, node_parame
 from .processes import REPO, ROS2, node_processes
 
 PARAMS = REPO / "configs" / "params"
+ATTEMPT_S = 5.0  # how long one get_parameters request may go unanswered
 # file -> (package, executable, namespace, node full name, overrides the test needs)
 NODES: dict[str, tuple[str, str, str, str, dict[str, Any]]] = {
     "sim.yaml": ("sdhn_sim", "sim", "/sdhn", "/sdhn/sim", {}),
@@ -54,10 +56,21 @@ def ask(fqn: str, names: list[str], timeout: float = 30.0) -> dict[str, Any]:
     try:
         client = node.create_client(GetParameters, f"{fqn}/get_parameters")
         assert client.wait_for_service(timeout_sec=timeout), f"{fqn}: no parameter service"
-        future = client.call_async(GetParameters.Request(names=names))
-        executor.spin_until_future_complete(future, timeout_sec=timeout)
-        result = future.result()
-        assert result is not None, f"{fqn}: get_parameters timed out"
+        # A service can answer before its response writer has matched this client's response
+        # reader; rmw_fastrtps then drops the response after waiting 100 ms (ros2/rmw_fastrtps
+        # #467), which a busy machine exceeds (seen once in a full run). The request is a read,
+        # so ask again instead of waiting for an answer that will never come.
+        deadline = time.monotonic() + timeout
+        result, attempts = None, 0
+        while result is None and time.monotonic() < deadline:
+            attempts += 1
+            future = client.call_async(GetParameters.Request(names=names))
+            executor.spin_until_future_complete(
+                future, timeout_sec=min(ATTEMPT_S, max(deadline - time.monotonic(), 0.1)))
+            result = future.result() if future.done() else None
+            if result is None:
+                client.remove_pending_request(future)
+        assert result is not None, f"{fqn}: get_parameters unanswered ({attempts} attempts)"
         return {n: parameter_value_to_python(v) for n, v in zip(names, result.values,
                                                                strict=True)}
     finally:

@@ -17,7 +17,7 @@ import pytest
 from sdhn_sim.recording.reader import read_recording, summaries_from_messages, summaries_from_states
 from sdhn_train.checkpoint import latest_checkpoint
 
-from .deploy_helpers import TEAM_NS, Seen, actor_cmd, observer, sim_cmd
+from .deploy_helpers import TEAM_NS, Seen, actor_cmd, observer, sim_cmd, trainer_cmd
 from .processes import ROS2, NodeProcess, node_processes
 
 N = 4
@@ -34,10 +34,8 @@ class TrainRun:
     seconds: float
 
 
-def trainer_cmd(run_dir: Path, config: Path, resume: bool = False) -> list[str]:
-    return [*ROS2, "run", "sdhn_train", "trainer", "--ros-args", "-p", "env:=maif-tiny",
-            "-p", f"run_dir:={run_dir}", "-p", f"rollout_steps:={ROLLOUT}",
-            "-p", f"config:={config}", "-p", f"resume:={'true' if resume else 'false'}"]
+def tiny_trainer(run_dir: Path, config: Path, resume: bool = False) -> list[str]:
+    return trainer_cmd(run_dir, config, rollout_steps=ROLLOUT, resume=resume)
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +44,7 @@ def train_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TrainRun]:
     config = tmp / "trainer.yaml"
     config.write_text("ppo:\n  epochs: 2\nlog:\n  tensorboard: false\n")
     run_dir, recording = tmp / "run", tmp / "run.mcap"
-    trainer = trainer_cmd(run_dir, config)
+    trainer = tiny_trainer(run_dir, config)
     recorder = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={recording}"]
     actors = [actor_cmd(i, N, seed=i) for i in range(N)]  # no weights_file: wait for the trainer
     with observer(N) as (_node, seen, spin), \
@@ -119,7 +117,7 @@ def test_resume_continues_from_the_last_version(train_run: TrainRun, tmp_path: P
     assert newest is not None
     config = tmp_path / "trainer.yaml"
     config.write_text("log:\n  tensorboard: false\n")
-    with node_processes(trainer_cmd(train_run.run_dir, config, resume=True)) as (trainer,):
+    with node_processes(tiny_trainer(train_run.run_dir, config, resume=True)) as (trainer,):
         assert trainer.wait_for_line("ready", timeout=40), trainer.output
         assert trainer.stop(timeout=8) == 0, trainer.output
     assert f"version={last} (resumed from {newest.name})" in trainer.output, trainer.output

@@ -16,8 +16,8 @@ import pytest
 from sdhn_sim.drops import DropKind
 from sdhn_sim.ros.status import EventReader
 
-from .deploy_helpers import actor_cmd, sim_cmd
-from .processes import ROS2, node_processes
+from .deploy_helpers import actor_cmd, sim_cmd, trainer_cmd
+from .processes import node_processes
 
 N = 4
 MAX_STEPS = 30
@@ -32,9 +32,7 @@ def test_every_sim_step_is_a_transition_or_a_counted_drop(
     config = tmp_path / "trainer.yaml"
     config.write_text("ppo:\n  epochs: 1\nlog:\n  tensorboard: false\n")
     events = tmp_path / "sim-events.jsonl"
-    trainer_args = [*ROS2, "run", "sdhn_train", "trainer", "--ros-args", "-p", "env:=maif-tiny",
-                    "-p", f"team_ns:={NS}", "-p", f"run_dir:={tmp_path / 'run'}",
-                    "-p", "rollout_steps:=16", "-p", f"config:={config}"]
+    trainer_args = trainer_cmd(tmp_path / "run", config, team_ns=NS, rollout_steps=16)
     actors = [actor_cmd(i, N, ns=NS, seed=i) for i in range(N)]
     with node_processes(trainer_args, *actors) as procs:
         trainer, victim = procs[0], procs[N]

@@ -20,7 +20,8 @@ from sdhn_sim.ros import topics
 from sdhn_sim.ros.qos import STEP
 from sdhn_train.trainer_node import OUT_OF_STEP_STEPS
 
-from .processes import ROS2, node_processes
+from .deploy_helpers import trainer_cmd
+from .processes import node_processes
 from .team_stream import Out, team_stream
 
 pytestmark = pytest.mark.ros
@@ -50,9 +51,7 @@ def test_out_of_step_trainer_resubscribes_and_assembles_again(
     monkeypatch.setenv("SDHN_READY_FILE", str(status_dir / "any.ready"))
     config = tmp_path / "trainer.yaml"
     config.write_text("ppo:\n  epochs: 1\nlog:\n  tensorboard: false\n")
-    trainer_args = [*ROS2, "run", "sdhn_train", "trainer", "--ros-args", "-p", "env:=maif-tiny",
-                    "-p", f"team_ns:={NS}", "-p", f"run_dir:={tmp_path / 'run'}",
-                    "-p", "rollout_steps:=16", "-p", f"config:={config}"]
+    trainer_args = trainer_cmd(tmp_path / "run", config, team_ns=NS, rollout_steps=16)
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("team", context=context)

@@ -119,9 +119,9 @@ def method_of(config: dict[str, Any]) -> str:
 
 def read_metrics(path: Path) -> dict[str, Series]:
     """{tag: (steps, values)} from a long-format metrics.csv; a step logged twice (a resumed
-    run) keeps its last value. A last row cut off by a crash is left out; any other row that
-    does not parse, a binary file or one that is not a trainer's metrics.csv is a FigureError
-    naming the file and line."""
+    run) keeps its last value. An empty file (a run just started) has no series; a last row cut
+    off by a crash is left out; any other row that does not parse, a binary file or one that is
+    not a trainer's metrics.csv is a FigureError naming the file and line."""
     rows: dict[str, dict[int, float]] = defaultdict(dict)
     try:
         with open(path, newline="", encoding="utf-8") as f:
@@ -130,8 +130,10 @@ def read_metrics(path: Path) -> dict[str, Series]:
         raise FigureError(f"{path}: not a text file (a trainer metrics.csv expected)") from None
     except csv.Error as e:
         raise FigureError(f"{path}: not a CSV file ({e})") from None
-    header = lines[0] if lines else None
-    if header is None or not {"step", "tag", "value"} <= set(header):
+    if not lines:
+        return {}  # a run that has just started (created, nothing logged yet) has no numbers
+    header = lines[0]
+    if not {"step", "tag", "value"} <= set(header):
         raise FigureError(f"{path}: not a trainer metrics.csv (columns {header})")
     i_step, i_tag, i_value = header.index("step"), header.index("tag"), header.index("value")
     for n, row in enumerate(lines[1:], start=2):

@@ -89,6 +89,19 @@ def test_a_run_with_nothing_logged_yet_is_a_row_without_numbers(
     assert "| rware-3 | QMIX | 1 | 0 |" in (tmp_path / "out" / "results.md").read_text()
 
 
+def test_a_run_directory_just_created_by_the_runner_is_left_out(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The runner writes run.json before its trainer writes config.yaml and metrics.csv."""
+    write_run(tmp_path / "logs")
+    starting = tmp_path / "logs" / "rware-3__qmix__s1"
+    starting.mkdir()
+    (starting / "run.json").write_text(json.dumps({"task": "rware-3", "method": "qmix",
+                                                   "seed": 1}))
+    rc, _ = figures(capsys, tmp_path / "logs", tmp_path / "out")
+    assert rc == 0
+    assert "QMIX" not in (tmp_path / "out" / "results.md").read_text()
+
+
 CONFIGS = {
     "garbage": (b"env: {name: [\n", "malformed YAML"),
     "binary": (bytes(range(256)), "not a text file"),

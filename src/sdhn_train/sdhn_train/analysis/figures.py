@@ -208,8 +208,16 @@ def read_run(path: Path) -> Run:
                suite=spec.get("suite"), series=read_metrics(csv_file))
 
 
+def _just_created(run: Path) -> bool:
+    """A run directory the experiment runner has made (its ``run.json``) whose trainer has not
+    yet written its config or metrics: what a report run beside a suite sees for a moment."""
+    return ((run / "run.json").is_file() and not (run / "config.yaml").exists()
+            and not (run / "metrics.csv").exists())
+
+
 def load_runs(logdir: Path) -> list[Run]:
-    """Every run directly under ``logdir``; FigureError if it is empty or mixed up."""
+    """Every run directly under ``logdir`` (but one just created, see ``_just_created``);
+    FigureError if it is empty or mixed up."""
     if not logdir.is_dir():
         raise FigureError(f"{logdir} is not a directory")
     entries = sorted(p for p in logdir.iterdir() if not p.name.startswith("."))
@@ -220,7 +228,10 @@ def load_runs(logdir: Path) -> list[Run]:
     if strays:
         raise FigureError(f"{logdir} mixes runs with other files ({', '.join(strays[:5])}): "
                           "point make_figures at a directory holding only run directories")
-    runs = [read_run(p) for p in entries]
+    runs = [read_run(p) for p in entries if not _just_created(p)]
+    if not runs:
+        raise FigureError(f"{logdir}: no run has started writing yet (every run directory "
+                          "holds only the runner's run.json)")
     seen: dict[tuple[str, str, int], Path] = {}
     for r in runs:
         key = (r.task, r.method, r.seed)

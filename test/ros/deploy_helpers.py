@@ -65,6 +65,16 @@ def trainer_cmd(run_dir: Path, config: Path, env: str = "maif-tiny", **params: A
     return args
 
 
+def status_watched_trainer(tmp_path: Path, monkeypatch: Any, ns: str) -> tuple[list[str], Path]:
+    """A maif-tiny trainer command (one PPO epoch, no TensorBoard, 16-step rollouts) whose
+    status file lands in the returned directory (``<status>/trainer.status.json``)."""
+    status = tmp_path / "status"
+    monkeypatch.setenv("SDHN_READY_FILE", str(status / "any.ready"))
+    config = tmp_path / "trainer.yaml"
+    config.write_text("ppo:\n  epochs: 1\nlog:\n  tensorboard: false\n")
+    return trainer_cmd(tmp_path / "run", config, team_ns=ns, rollout_steps=16), status
+
+
 def _ros(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"

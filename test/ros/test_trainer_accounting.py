@@ -16,7 +16,7 @@ import pytest
 from sdhn_sim.drops import DropKind
 from sdhn_sim.ros.status import EventReader
 
-from .deploy_helpers import actor_cmd, sim_cmd, trainer_cmd
+from .deploy_helpers import actor_cmd, sim_cmd, status_watched_trainer
 from .processes import node_processes
 
 N = 4
@@ -27,12 +27,8 @@ NS = "/acct"
 
 def test_every_sim_step_is_a_transition_or_a_counted_drop(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    status = tmp_path / "status"
-    monkeypatch.setenv("SDHN_READY_FILE", str(status / "any.ready"))
-    config = tmp_path / "trainer.yaml"
-    config.write_text("ppo:\n  epochs: 1\nlog:\n  tensorboard: false\n")
+    trainer_args, status = status_watched_trainer(tmp_path, monkeypatch, NS)
     events = tmp_path / "sim-events.jsonl"
-    trainer_args = trainer_cmd(tmp_path / "run", config, team_ns=NS, rollout_steps=16)
     actors = [actor_cmd(i, N, ns=NS, seed=i) for i in range(N)]
     with node_processes(trainer_args, *actors) as procs:
         trainer, victim = procs[0], procs[N]

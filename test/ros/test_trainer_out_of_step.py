@@ -20,7 +20,7 @@ from sdhn_sim.ros import topics
 from sdhn_sim.ros.qos import STEP
 from sdhn_train.trainer_node import OUT_OF_STEP_STEPS
 
-from .deploy_helpers import trainer_cmd
+from .deploy_helpers import status_watched_trainer
 from .processes import node_processes
 from .team_stream import Out, team_stream
 
@@ -47,11 +47,7 @@ def test_out_of_step_trainer_resubscribes_and_assembles_again(
 
     from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
 
-    status_dir = tmp_path / "status"
-    monkeypatch.setenv("SDHN_READY_FILE", str(status_dir / "any.ready"))
-    config = tmp_path / "trainer.yaml"
-    config.write_text("ppo:\n  epochs: 1\nlog:\n  tensorboard: false\n")
-    trainer_args = trainer_cmd(tmp_path / "run", config, team_ns=NS, rollout_steps=16)
+    trainer_args, status_dir = status_watched_trainer(tmp_path, monkeypatch, NS)
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("team", context=context)

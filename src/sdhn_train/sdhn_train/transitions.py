@@ -306,12 +306,13 @@ class TransitionAssembler:
                 cause = DropKind.MISSED_ACTION if rec.missed else DropKind.INCOMPLETE_STEP
                 self.stats.dropped[cause] = self.stats.dropped.get(cause, 0) + 1
                 if not rec.missed:
-                    self._count_missing(rec)
+                    self._count_incomplete(rec)
                 self._finish(key, gap=True, episode_end=False)
                 continue
             break
 
-    def _count_missing(self, rec: _Record) -> None:
+    def _count_incomplete(self, rec: _Record) -> None:
+        """An incomplete step: what it lacked, and one more in the run without a transition."""
         m = self.stats.missing
         parts = [] if rec.state is not None else ["state"]
         parts += [f"obs {i}" for i in np.flatnonzero(~rec.have_obs)]

@@ -15,7 +15,7 @@ from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.actor_torch import Actor
 from sdhn_policy.team_size import input_tensor_name
 from sdhn_policy.weights import ActorSpec, save_actor_file
-from sdhn_train.config import ConfigError
+from sdhn_train.config import Config, ConfigError, set_field, validate
 from sdhn_train.warm_start import load_actor_into
 
 SPECS = [
@@ -74,3 +74,34 @@ def test_an_actor_of_another_shape_is_still_refused(tmp_path: Path) -> None:
     no_ids = Actor(dataclasses.replace(SPECS[0], use_robot_id=False))
     with pytest.raises(ConfigError, match="differs"):
         load_actor_into(no_ids, tmp_path / "two.safetensors")
+
+
+@pytest.mark.parametrize("spec", SPECS, ids=["mlp_gru", "gru_only", "linear"])
+def test_init_temperature_divides_the_logits(spec: ActorSpec, tmp_path: Path) -> None:
+    """actor.init_temperature T starts from softmax(logits / T): the same greedy action, a
+    higher entropy for T > 1 (the remedy for a warm actor too deterministic to explore)."""
+    src = _trained(spec, tmp_path / "two.safetensors")
+    warm = Actor(spec)
+    load_actor_into(warm, tmp_path / "two.safetensors", temperature=3.0)
+    rt = ActorRuntime.from_weights(warm.export(1))
+    obs = np.random.default_rng(3).normal(size=(64, 9)).astype(np.float32)
+    ids = np.arange(64) % 2
+    cold = src.step(obs, src.initial_state(64), robot_id=ids)[0]
+    hot = rt.step(obs, rt.initial_state(64), robot_id=ids)[0]
+    np.testing.assert_allclose(hot, cold / 3.0, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(hot.argmax(1), cold.argmax(1))
+
+    def entropy(logits: np.ndarray) -> float:
+        p = np.exp(logits - logits.max(1, keepdims=True))
+        p /= p.sum(1, keepdims=True)
+        return float(-(p * np.log(p)).sum(1).mean())
+
+    assert entropy(hot) > entropy(cold)
+
+
+@pytest.mark.parametrize("bad", ["0", "-1", "nan", "inf"])
+def test_init_temperature_must_be_positive_and_finite(bad: str) -> None:
+    cfg = Config()
+    set_field(cfg, "actor.init_temperature", bad)
+    with pytest.raises(ConfigError, match=r"actor\.init_temperature"):
+        validate(cfg)

@@ -14,6 +14,7 @@ ConfigError naming the field and the allowed values.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -170,6 +171,9 @@ def validate(cfg: Config, resuming: bool = False) -> None:
                                             and cfg.log.run_name not in (".", "..")
                                             and "\x00" not in cfg.log.run_name),
          "log.run_name", "one directory name (no / or \\, not . or ..)", cfg.log.run_name)
+    need(math.isfinite(cfg.actor.init_temperature) and cfg.actor.init_temperature > 0,
+         "actor.init_temperature", "a finite number > 0 (1 = the loaded actor unchanged)",
+         cfg.actor.init_temperature)
     need(all(h >= 1 for h in cfg.actor.hidden_sizes), "actor.hidden_sizes", "widths >= 1",
          cfg.actor.hidden_sizes)
     # A missing warm-start file is refused here, not after the environments are built.

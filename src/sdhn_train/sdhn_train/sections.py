@@ -70,6 +70,8 @@ class ActorConfig:
     init_from: str | None = opt(None, "start from this exported actor (.safetensors), e.g. one "
                                       "trained on maif-solo or a smaller team (warm start; a "
                                       "new robot id starts as the mean of the trained ids)")
+    init_temperature: float = opt(1.0, "warm start only: divide the loaded actor's logits by "
+                                       "this (> 1 = a higher-entropy start, same greedy policy)")
 
 
 @dataclass

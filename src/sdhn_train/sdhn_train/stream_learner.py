@@ -62,7 +62,7 @@ class StreamLearner:
         self.rng = seed_everything(cfg.train.seed, cfg.train.deterministic, cfg.train.threads)
         self.learner: Learner = get_algorithm(cfg.algo.name).build_learner(cfg, info, self.rng)
         if cfg.actor.init_from:  # warm start, as the in-process trainer (a resume overrides it)
-            load_actor_into(self.learner.actor, cfg.actor.init_from)
+            load_actor_into(self.learner.actor, cfg.actor.init_from, cfg.actor.init_temperature)
         self.version = 1
         self.transitions = 0  # team env-steps learned from: names the checkpoints
 

@@ -93,7 +93,7 @@ class Trainer:
         self.learner: Learner = get_algorithm(cfg.algo.name).build_learner(
             cfg, EnvInfo.of(self.env), learner_rng)
         if cfg.actor.init_from and warm_start:  # warm start from an exported actor
-            load_actor_into(self.learner.actor, cfg.actor.init_from)
+            load_actor_into(self.learner.actor, cfg.actor.init_from, cfg.actor.init_temperature)
         if group is not None:
             if not isinstance(self.learner, PPOLearner):
                 raise ConfigError("train.learner_processes > 1 needs a PPO learner (sdhn, "

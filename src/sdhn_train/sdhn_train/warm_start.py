@@ -19,9 +19,14 @@ from sdhn_policy.weights import WeightsError, decode_weights, load_actor_file
 from sdhn_train.config import ConfigError
 
 
-def load_actor_into(actor: Actor, path: str | os.PathLike[str]) -> int:
+def load_actor_into(actor: Actor, path: str | os.PathLike[str], temperature: float = 1.0) -> int:
     """Copy the weights of the actor file at ``path`` into ``actor``; returns their version.
-    ConfigError when the file cannot be read or its network differs from ``actor``'s."""
+    ConfigError when the file cannot be read or its network differs from ``actor``'s.
+
+    ``temperature`` (``actor.init_temperature``) scales the output layer by 1/T, so the started
+    policy is softmax(logits / T): the same greedy action everywhere, a higher entropy for T > 1.
+    A warm actor trained elsewhere starts nearly deterministic, and on a task where its habits
+    earn nothing its entropy bonus alone may never lift it (rware-3 from the tiny-2ag actor)."""
     try:
         blob = load_actor_file(path)
         spec, tensors = decode_weights(blob)
@@ -36,4 +41,7 @@ def load_actor_into(actor: Actor, path: str | os.PathLike[str]) -> int:
     with torch.no_grad():
         for name, t in actor.tensors().items():
             t.copy_(torch.from_numpy(tensors[name]))
+        if temperature != 1.0:
+            actor.head.weight.div_(temperature)
+            actor.head.bias.div_(temperature)
     return blob.version

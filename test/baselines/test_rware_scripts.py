@@ -9,7 +9,10 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
+import yaml
 from script_modules import load_script
+
+from sdhn_train.config import Config
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -84,3 +87,29 @@ def test_eval_rware_policy_refuses_a_maif_actor_and_a_missing_file(capsys, tmp_p
     assert "57-float" in capsys.readouterr().err
     assert evaluate.main([str(tmp_path / "none"), "rware-3"]) == 2
     assert "no such actor file" in capsys.readouterr().err
+
+
+def _onset_run(root: Path, name: str, deliveries: list[float], entropy: list[float]) -> None:
+    run = root / name
+    run.mkdir(parents=True)
+    cfg = Config()
+    cfg.env.name = "rware-3"
+    (run / "config.yaml").write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+    with open(run / "metrics.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["step", "wall_time", "tag", "value"])
+        for i, (d, e) in enumerate(zip(deliveries, entropy, strict=True)):
+            w.writerow([(i + 1) * 250_000, 0, "eval/deliveries", d])
+            w.writerow([(i + 1) * 250_000, 0, "losses/entropy", e])
+
+
+def test_learning_onset_names_the_first_steps_and_the_runs_that_never_learned(tmp_path, capsys):
+    onset = _script("learning_onset")
+    _onset_run(tmp_path, "rware-3__a_warm__s1", [0, 0, 0.5, 4, 12], [0.1, 0.2, 0.6, 0.9, 0.5])
+    _onset_run(tmp_path, "rware-3__a_warm__s2", [0, 0, 0, 0, 0], [0.1, 0.1, 0.1, 0.2, 0.1])
+    _onset_run(tmp_path, "rware-3__b__s1", [9, 9, 9, 9, 9], [1, 1, 1, 1, 1])
+    assert onset.main([str(tmp_path), "--match", "_warm", "--level", "10"]) == 0
+    rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| rware")]
+    assert rows == ["| rware-3__a_warm__s1 | 0.75 M | 1.25 M | 12.0 | 0.10 | 0.90 |",
+                    "| rware-3__a_warm__s2 | not by 1.25 M | not by 1.25 M | 0.0 | 0.10 | 0.20 |"]
+    assert onset.main([str(tmp_path), "--match", "nothing"]) == 1

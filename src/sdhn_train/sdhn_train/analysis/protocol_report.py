@@ -363,20 +363,23 @@ def claims_markdown(rows: list[dict[str, str]], source: str) -> str:
 
 def reference_policies(task: str, cache: Path, compute: bool) -> dict[str, float] | None:
     """RWARE: deliveries per episode of random and both scripted policies on the absolute
-    metric's episodes, cached in ``cache`` (a JSON file of {task: {policy: mean}})."""
-    known: dict[str, Any] = json.loads(cache.read_text()) if cache.is_file() else {}
-    if task in known:
-        return {k: float(v) for k, v in known[task].items()}
-    if not compute:
-        return None
-    from sdhn_policy.deploy_eval import RWARE_EVAL_SEED
-    from sdhn_sim.envs.rware_baselines import POLICIES, evaluate_baseline
+    metric's episodes, cached in ``cache`` (a JSON file of {task: {policy: mean}}), in the
+    order of ``POLICIES`` whether computed or read (the report is the same either way)."""
+    from sdhn_sim.envs.rware_baselines import POLICIES
 
-    known[task] = {p: evaluate_baseline(task, p, episodes=RWARE_ABSOLUTE_EPISODES,
-                                        seed=RWARE_EVAL_SEED)["deliveries_mean"]
-                   for p in POLICIES}
-    cache.write_text(json.dumps(known, indent=1, sort_keys=True) + "\n")
-    return {k: float(v) for k, v in known[task].items()}
+    known: dict[str, Any] = json.loads(cache.read_text()) if cache.is_file() else {}
+    if task not in known:
+        if not compute:
+            return None
+        from sdhn_policy.deploy_eval import RWARE_EVAL_SEED
+        from sdhn_sim.envs.rware_baselines import evaluate_baseline
+
+        known[task] = {p: evaluate_baseline(task, p, episodes=RWARE_ABSOLUTE_EPISODES,
+                                            seed=RWARE_EVAL_SEED)["deliveries_mean"]
+                       for p in POLICIES}
+        cache.write_text(json.dumps(known, indent=1, sort_keys=True) + "\n")
+    order = [p for p in POLICIES if p in known[task]] + sorted(set(known[task]) - set(POLICIES))
+    return {p: float(known[task][p]) for p in order}
 
 
 def _est(e: ps.Estimate, *runs: int, digits: int = 2) -> str:

@@ -33,7 +33,17 @@ def first_step(run: Run, tag: str, above: float) -> int | None:
     return int(series[0][hits[0]]) if len(hits) else None
 
 
-def onset_row(run: Run, tag: str, level: float) -> list[str]:
+def value_at(run: Run, tag: str, step: int) -> float | None:
+    """``tag``'s value at the last logged step not after ``step`` (None: nothing logged by then
+    or the run has not reached it yet)."""
+    series = run.series.get(tag)
+    if series is None or not len(series[0]) or series[0][-1] < step:
+        return None
+    i = int(np.searchsorted(series[0], step, side="right")) - 1
+    return float(series[1][i]) if i >= 0 else None
+
+
+def onset_row(run: Run, tag: str, level: float, at_step: int) -> list[str]:
     steps, _ = run.series.get(tag, (np.array([0]), np.array([0.0])))
     entropy = run.series.get(ENTROPY)
     last = int(steps[-1]) if len(steps) else 0
@@ -43,8 +53,9 @@ def onset_row(run: Run, tag: str, level: float) -> list[str]:
 
     start = f"{entropy[1][0]:.2f}" if entropy is not None and len(entropy[1]) else "—"
     top = f"{entropy[1].max():.2f}" if entropy is not None and len(entropy[1]) else "—"
-    final = run.final(tag)
+    final, then = run.final(tag), value_at(run, tag, at_step)
     return [run.path.name, at(first_step(run, tag, 0.0)), at(first_step(run, tag, level - 1e-9)),
+            f"{then:.1f}" if then is not None else "—",
             f"{final:.1f}" if final is not None else "—", start, top]
 
 
@@ -56,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="keep runs whose directory name contains this (all of them, if repeated)")
     p.add_argument("--tag", default="eval/deliveries", help="the greedy evaluation's metric")
     p.add_argument("--level", type=float, default=10.0, help="the second threshold")
+    p.add_argument("--at", type=float, default=3e6, help="also the value at this step (a "
+                                                         "screen's budget, to compare longer runs)")
     args = p.parse_args(argv)
     rows = []
     for logdir in args.logdirs:
@@ -67,16 +80,16 @@ def main(argv: list[str] | None = None) -> int:
             if not (d / "metrics.csv").is_file():
                 continue  # created by the runner, nothing logged yet
             try:
-                rows.append(onset_row(read_run(d), args.tag, args.level))
+                rows.append(onset_row(read_run(d), args.tag, args.level, int(args.at)))
             except FigureError as e:
                 print(f"learning_onset: {e}", file=sys.stderr)
                 return 2
     if not rows:
         print("learning_onset: no run matches", file=sys.stderr)
         return 1
-    print(f"| run | first {args.tag} > 0 | first ≥ {args.level:g} | latest | "
-          f"entropy at start | highest entropy |")
-    print("|---|---|---|---|---|---|")
+    print(f"| run | first {args.tag} > 0 | first ≥ {args.level:g} | at {args.at / 1e6:g} M | "
+          f"latest | entropy at start | highest entropy |")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
         print("| " + " | ".join(r) + " |")
     return 0

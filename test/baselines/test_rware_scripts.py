@@ -108,8 +108,9 @@ def test_learning_onset_names_the_first_steps_and_the_runs_that_never_learned(tm
     _onset_run(tmp_path, "rware-3__a_warm__s1", [0, 0, 0.5, 4, 12], [0.1, 0.2, 0.6, 0.9, 0.5])
     _onset_run(tmp_path, "rware-3__a_warm__s2", [0, 0, 0, 0, 0], [0.1, 0.1, 0.1, 0.2, 0.1])
     _onset_run(tmp_path, "rware-3__b__s1", [9, 9, 9, 9, 9], [1, 1, 1, 1, 1])
-    assert onset.main([str(tmp_path), "--match", "_warm", "--level", "10"]) == 0
+    assert onset.main([str(tmp_path), "--match", "_warm", "--level", "10", "--at", "1e6"]) == 0
     rows = [r for r in capsys.readouterr().out.splitlines() if r.startswith("| rware")]
-    assert rows == ["| rware-3__a_warm__s1 | 0.75 M | 1.25 M | 12.0 | 0.10 | 0.90 |",
-                    "| rware-3__a_warm__s2 | not by 1.25 M | not by 1.25 M | 0.0 | 0.10 | 0.20 |"]
+    assert rows == ["| rware-3__a_warm__s1 | 0.75 M | 1.25 M | 4.0 | 12.0 | 0.10 | 0.90 |",
+                    "| rware-3__a_warm__s2 | not by 1.25 M | not by 1.25 M | 0.0 | 0.0 | 0.10 | "
+                    "0.20 |"]
     assert onset.main([str(tmp_path), "--match", "nothing"]) == 1

@@ -44,15 +44,15 @@ def value_at(run: Run, tag: str, step: int) -> float | None:
 
 
 def onset_row(run: Run, tag: str, level: float, at_step: int) -> list[str]:
-    steps, _ = run.series.get(tag, (np.array([0]), np.array([0.0])))
-    entropy = run.series.get(ENTROPY)
+    steps = run.series[tag][0] if tag in run.series else np.array([0])
     last = int(steps[-1]) if len(steps) else 0
 
     def at(step: int | None) -> str:
         return f"{step / 1e6:.2f} M" if step is not None else f"not by {last / 1e6:.2f} M"
 
-    start = f"{entropy[1][0]:.2f}" if entropy is not None and len(entropy[1]) else "—"
-    top = f"{entropy[1].max():.2f}" if entropy is not None and len(entropy[1]) else "—"
+    entropy = run.series.get(ENTROPY, (None, np.array([])))[1]
+    start, top = ((f"{entropy[0]:.2f}", f"{entropy.max():.2f}") if len(entropy)
+                  else ("—", "—"))
     final, then = run.final(tag), value_at(run, tag, at_step)
     return [run.path.name, at(first_step(run, tag, 0.0)), at(first_step(run, tag, level - 1e-9)),
             f"{then:.1f}" if then is not None else "—",

@@ -21,15 +21,6 @@ from sdhn_train.analysis.figures import Run, lambda_sk, read_run
 from sdhn_train.runs import PH_DIR
 
 
-def value_at(run: Run, tag: str, step: int) -> float | None:
-    """The tag's value at ``step`` or the last one before it; None if never logged."""
-    if tag not in run.series:
-        return None
-    steps, values = run.series[tag]
-    k = int(np.searchsorted(steps, step, side="right")) - 1
-    return float(values[k]) if k >= 0 else None
-
-
 def snapshot(run: Run, step: int) -> np.ndarray:
     with np.load(run.path / PH_DIR / f"ph_{step:012d}.npz") as z:
         return np.array(z["ph_mean"])
@@ -63,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         im = ax.imshow(ph, vmin=0.0, vmax=1.0, cmap="viridis", aspect="auto")
 
         def fmt(tag: str, digits: int = 2, run: Run = run) -> str:
-            v = value_at(run, tag, step)
+            v = run.value_at(tag, step)
             return "NC" if v is None else f"{v:.{digits}f}"
 
         line = (f"$\\lambda_{{Sk}}$ = {lambda_sk(run):g}, step {step}\n"

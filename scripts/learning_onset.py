@@ -33,16 +33,6 @@ def first_step(run: Run, tag: str, above: float) -> int | None:
     return int(series[0][hits[0]]) if len(hits) else None
 
 
-def value_at(run: Run, tag: str, step: int) -> float | None:
-    """``tag``'s value at the last logged step not after ``step`` (None: nothing logged by then
-    or the run has not reached it yet)."""
-    series = run.series.get(tag)
-    if series is None or not len(series[0]) or series[0][-1] < step:
-        return None
-    i = int(np.searchsorted(series[0], step, side="right")) - 1
-    return float(series[1][i]) if i >= 0 else None
-
-
 def onset_row(run: Run, tag: str, level: float, at_step: int) -> list[str]:
     steps = run.series[tag][0] if tag in run.series else np.array([0])
     last = int(steps[-1]) if len(steps) else 0
@@ -53,7 +43,8 @@ def onset_row(run: Run, tag: str, level: float, at_step: int) -> list[str]:
     entropy = run.series.get(ENTROPY, (None, np.array([])))[1]
     start, top = ((f"{entropy[0]:.2f}", f"{entropy.max():.2f}") if len(entropy)
                   else ("—", "—"))
-    final, then = run.final(tag), value_at(run, tag, at_step)
+    final = run.final(tag)
+    then = run.value_at(tag, at_step) if last >= at_step else None  # not reached yet: no value
     return [run.path.name, at(first_step(run, tag, 0.0)), at(first_step(run, tag, level - 1e-9)),
             f"{then:.1f}" if then is not None else "—",
             f"{final:.1f}" if final is not None else "—", start, top]

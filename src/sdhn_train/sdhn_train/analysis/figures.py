@@ -95,6 +95,14 @@ class Run:
         s = self.series.get(tag)
         return float(s[1][-1]) if s is not None and len(s[0]) else None
 
+    def value_at(self, tag: str, step: int) -> float | None:
+        """``tag``'s value at ``step`` or the last one logged before it (None: nothing by then)."""
+        s = self.series.get(tag)
+        if s is None:
+            return None
+        k = int(np.searchsorted(s[0], step, side="right")) - 1
+        return float(s[1][k]) if k >= 0 else None
+
     @property
     def reward(self) -> str:
         """The reward the run was trained and evaluated with (MAIF names two; RWARE has one)."""

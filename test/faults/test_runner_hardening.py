@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sdhn_train.analysis import experiments_cli
@@ -30,6 +31,7 @@ from sdhn_train.analysis.experiments import (
     run_state,
     truncate_metrics,
 )
+from sdhn_train.checkpoint import checkpoint_path, checkpoints, save_checkpoint
 
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
 
@@ -264,6 +266,19 @@ def test_a_done_run_missing_outputs_is_not_skipped(tmp_path: Path) -> None:
     assert run_state(run, logdir) == "done"
     (logdir / run.name / "metrics.csv").unlink()
     assert run_state(run, logdir) == "partial"
+
+
+def test_a_finished_run_keeps_only_its_newest_checkpoint(tmp_path: Path) -> None:
+    logdir = _finished(tmp_path)
+    run = load_suite(tmp_path / "suite.yaml", "quick")[0]
+    d = logdir / run.name
+    for step in (100, 200, 300):
+        save_checkpoint(checkpoint_path(d, step), {"w": np.zeros(2, np.float32)},
+                        {"global_step": step})
+    finish(run, logdir, 1.0)
+    assert checkpoints(d) == [checkpoint_path(d, 300)]
+    assert sorted(p.name for p in (d / "checkpoints").iterdir()) == [
+        "step_000000000300.json", "step_000000000300.safetensors"]
 
 
 @pytest.mark.parametrize("value", ["Infinity", "-Infinity", "NaN"])

@@ -56,7 +56,7 @@ import yaml
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.yaml_io import YamlError, load_yaml
 from sdhn_train.algorithms.registry import ALGO_NAMES
-from sdhn_train.checkpoint import checkpoint_step, latest_checkpoint
+from sdhn_train.checkpoint import checkpoint_step, latest_checkpoint, prune_checkpoints
 from sdhn_train.config import Config, ConfigError, set_field, validate
 from sdhn_train.evaluation import headline
 from sdhn_train.runs import PH_DIR
@@ -431,6 +431,10 @@ def finish(run: RunSpec, logdir: Path, wall: float) -> dict[str, Any]:
     tmp = d / (DONE + ".tmp")
     tmp.write_text(json.dumps(marker, indent=1))
     tmp.replace(d / DONE)  # atomic: a marker is complete or absent
+    # A finished run resumes only to be extended (more steps), from its newest checkpoint; the
+    # older ones are dead weight, and a QMIX or HGCN-MIX checkpoint holds its replay buffer
+    # (2.6 GB on maif-20): three of them per finished run filled a 250 GB disk mid-suite.
+    prune_checkpoints(d, keep=1)
     return marker
 
 

@@ -7,13 +7,16 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import yaml
 
 from sdhn_train.analysis.carry import MANIFEST, main, progress, restore, save
-from sdhn_train.analysis.experiments import DONE, load_suite, run_suite
+from sdhn_train.analysis.experiments import DONE, load_suite, prepare, run_suite
 from sdhn_train.checkpoint import checkpoints
 
 from .test_experiments import RESUME_SUITE, _results
@@ -31,11 +34,15 @@ def test_carry_skips_finished_and_resumes_unfinished_elsewhere(tmp_path: Path) -
     runs = load_suite(suite, "quick")
     first, second = (r.name for r in runs)
     machine_a = tmp_path / "a" / "logs"
-    assert run_suite(runs, machine_a, jobs=1, out=io.StringIO())["done"] == 2
+    assert run_suite(runs[:1], machine_a, jobs=1, out=io.StringIO())["done"] == 1
+    # The second run trained by the runner's own command but never finished by it (which
+    # would prune its checkpoints to the newest), as if the machine went away at the end ...
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    subprocess.run(prepare(runs[1], machine_a), env=env, check=True, capture_output=True)
     reference = _results(machine_a / second)
 
-    # The second run as if the machine went away midway: no marker, an earlier checkpoint.
-    (machine_a / second / DONE).unlink()
+    # ... and then rolled back to an earlier checkpoint: no marker, midway.
+    assert not (machine_a / second / DONE).exists()
     ckpts = checkpoints(machine_a / second)
     assert len(ckpts) >= 2, "the budget should leave more than one checkpoint"
     for stem in ckpts[1:]:

@@ -151,6 +151,8 @@ BAD_SUITES = {
     "methods-as-string": (GOOD + "experiments:\n  - {methods: mappo, tasks: [maif-solo]}\n",
                           "expected a list of names"),
     "experiments-mapping": (GOOD + "experiments: {methods: [mappo]}\n", "experiments"),
+    "override-beside-algo": (GOOD.replace("{algo: mappo}", "{algo: mappo, ppo.lr: 0.1}"),
+                             "methods.mappo: unknown key(s) ppo.lr"),
     "alias-bomb": ("a: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
         f"{c}: &{c} [{', '.join([f'*{p}'] * 10)}]\n"
         for p, c in zip("abcdefgh", "bcdefghi", strict=True)), "aliases expand"),
@@ -238,8 +240,9 @@ def test_truncation_drops_a_cut_off_last_row(tmp_path: Path) -> None:
 # --- finishing -----------------------------------------------------------------------------
 
 
-def _finished(tmp_path: Path, summary: str = '{"eval/episodic_return": 1.5}') -> Path:
-    run = load_suite(_suite(tmp_path, GOOD), "quick")[0]
+def _finished(tmp_path: Path, summary: str = '{"eval/episodic_return": 1.5}',
+              text: str = GOOD) -> Path:
+    run = load_suite(_suite(tmp_path, text), "quick")[0]
     logdir = tmp_path / "logs"
     prepare(run, logdir)
     d = logdir / run.name
@@ -268,17 +271,23 @@ def test_a_done_run_missing_outputs_is_not_skipped(tmp_path: Path) -> None:
     assert run_state(run, logdir) == "partial"
 
 
-def test_a_finished_run_keeps_only_its_newest_checkpoint(tmp_path: Path) -> None:
-    logdir = _finished(tmp_path)
+@pytest.mark.parametrize("keep_all", [False, True])
+def test_a_finished_run_keeps_only_its_newest_checkpoint_unless_told_to_keep_all(
+        keep_all: bool, tmp_path: Path) -> None:
+    suite = GOOD.replace("mappo: {algo: mappo}",
+                         "mappo: {algo: mappo, set: {log.keep_checkpoints: 0}}" if keep_all
+                         else "mappo: {algo: mappo}")
+    logdir = _finished(tmp_path, text=suite)
     run = load_suite(tmp_path / "suite.yaml", "quick")[0]
     d = logdir / run.name
     for step in (100, 200, 300):
         save_checkpoint(checkpoint_path(d, step), {"w": np.zeros(2, np.float32)},
                         {"global_step": step})
     finish(run, logdir, 1.0)
-    assert checkpoints(d) == [checkpoint_path(d, 300)]
-    assert sorted(p.name for p in (d / "checkpoints").iterdir()) == [
-        "step_000000000300.json", "step_000000000300.safetensors"]
+    kept = (100, 200, 300) if keep_all else (300,)
+    assert checkpoints(d) == [checkpoint_path(d, step) for step in kept]
+    assert sorted(p.name for p in (d / "checkpoints").iterdir()) == sorted(
+        f"step_{step:012d}.{ext}" for step in kept for ext in ("json", "safetensors"))
 
 
 @pytest.mark.parametrize("value", ["Infinity", "-Infinity", "NaN"])

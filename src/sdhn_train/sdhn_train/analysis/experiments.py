@@ -174,8 +174,14 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
         raise ExperimentError(f"--budget {budget!r}: {path} defines {', '.join(budgets) or 'none'}")
     b = _mapping(budgets[budget], f"{path}: budgets.{budget}")
     seeds = _seeds(b.get("seeds", data.get("seeds", [1])), f"{path}: budgets.{budget}")
-    for m, spec in methods.items():
-        algo = _mapping(spec, f"{path}: methods.{m}").get("algo")
+    for m, raw in methods.items():
+        spec = _mapping(raw, f"{path}: methods.{m}")
+        unknown = sorted(set(spec) - {"algo", "set"}, key=str)
+        if unknown:  # e.g. an override written beside `algo` instead of under `set`
+            raise ExperimentError(f"{path}: methods.{m}: unknown key(s) "
+                                  f"{', '.join(map(str, unknown))}; a method has `algo` and "
+                                  "optional `set` (config overrides)")
+        algo = spec.get("algo")
         if algo not in ALGO_NAMES:
             raise ExperimentError(f"{path}: methods.{m}.algo = {algo!r}; allowed: "
                                   f"{', '.join(ALGO_NAMES)}")
@@ -434,7 +440,9 @@ def finish(run: RunSpec, logdir: Path, wall: float) -> dict[str, Any]:
     # A finished run resumes only to be extended (more steps), from its newest checkpoint; the
     # older ones are dead weight, and a QMIX or HGCN-MIX checkpoint holds its replay buffer
     # (2.6 GB on maif-20): three of them per finished run filled a 250 GB disk mid-suite.
-    prune_checkpoints(d, keep=1)
+    # A suite that set log.keep_checkpoints: 0 asked to keep them all, and does.
+    if run.config(logdir).log.keep_checkpoints != 0:
+        prune_checkpoints(d, keep=1)
     return marker
 
 

@@ -152,7 +152,13 @@ BAD_SUITES = {
                           "expected a list of names"),
     "experiments-mapping": (GOOD + "experiments: {methods: [mappo]}\n", "experiments"),
     "override-beside-algo": (GOOD.replace("{algo: mappo}", "{algo: mappo, ppo.lr: 0.1}"),
-                             "methods.mappo: unknown key(s) ppo.lr"),
+                             "methods.mappo: unknown key(s) ppo.lr; allowed: algo"),
+    "misspelt-top-level-key": (GOOD.replace("seeds: [1]", "seed: [1]"),
+                               "unknown key(s) seed; allowed: name"),
+    "budget-key-outside-set": (GOOD.replace("    set:\n", "    total_steps: 10\n    set:\n", 1),
+                               "budgets.quick: unknown key(s) total_steps; allowed: set"),
+    "group-key-misspelt": (GOOD + "experiments:\n  - {method: [mappo], tasks: [maif-solo]}\n",
+                           "experiments[0]: unknown key(s) method; allowed: methods"),
     "alias-bomb": ("a: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
         f"{c}: &{c} [{', '.join([f'*{p}'] * 10)}]\n"
         for p, c in zip("abcdefgh", "bcdefghi", strict=True)), "aliases expand"),

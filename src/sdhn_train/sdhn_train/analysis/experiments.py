@@ -140,6 +140,25 @@ def _seeds(data: Any, where: str) -> list[int]:
     return list(data)
 
 
+# What each level of a suite file may hold. Anything else is refused: a key the loader does not
+# read (an override written beside `algo` instead of under `set`, a misspelt `seed:`) would
+# otherwise be dropped unseen and the runs trained on the defaults under a name that says not.
+SUITE_KEYS = {"name": "the suite's name", "methods": "name -> {algo, set}",
+              "tasks": "name -> config overrides", "seeds": "the default seeds",
+              "budgets": "name -> {set, seeds}", "experiments": "a list of {methods, tasks, seeds}"}
+METHOD_KEYS = {"algo": "the algorithm", "set": "config overrides"}
+BUDGET_KEYS = {"set": "config overrides", "seeds": "seeds that replace the suite's"}
+GROUP_KEYS = {"methods": "method names", "tasks": "task names", "seeds": "this group's seeds"}
+
+
+def _known_keys(data: dict[str, Any], where: str, allowed: dict[str, str]) -> dict[str, Any]:
+    unknown = [str(k) for k in data if k not in allowed]
+    if unknown:
+        raise ExperimentError(f"{where}: unknown key(s) {', '.join(unknown)}; allowed: "
+                              + "; ".join(f"{k} ({v})" for k, v in allowed.items()))
+    return data
+
+
 def read_suite(path: Path) -> dict[str, Any]:
     """The suite file's top-level mapping; ExperimentError (one line) for an unreadable, binary,
     malformed or empty file, duplicate keys or an alias bomb."""
@@ -158,7 +177,7 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
     partial suite has every method on every task before more seeds). Every name is checked
     (``check_name``) and every run validated before anything is written."""
     path = Path(path)
-    data = read_suite(path)
+    data = _known_keys(read_suite(path), str(path), SUITE_KEYS)
     name = check_name(data.get("name", path.stem), f"{path}: name")
     methods = _mapping(data.get("methods"), f"{path}: methods")
     tasks = _mapping(data.get("tasks"), f"{path}: tasks")
@@ -172,15 +191,12 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
     check_name(budget, "--budget")
     if budget not in budgets:
         raise ExperimentError(f"--budget {budget!r}: {path} defines {', '.join(budgets) or 'none'}")
-    b = _mapping(budgets[budget], f"{path}: budgets.{budget}")
+    b = _known_keys(_mapping(budgets[budget], f"{path}: budgets.{budget}"),
+                    f"{path}: budgets.{budget}", BUDGET_KEYS)
     seeds = _seeds(b.get("seeds", data.get("seeds", [1])), f"{path}: budgets.{budget}")
     for m, raw in methods.items():
-        spec = _mapping(raw, f"{path}: methods.{m}")
-        unknown = sorted(set(spec) - {"algo", "set"}, key=str)
-        if unknown:  # e.g. an override written beside `algo` instead of under `set`
-            raise ExperimentError(f"{path}: methods.{m}: unknown key(s) "
-                                  f"{', '.join(map(str, unknown))}; a method has `algo` and "
-                                  "optional `set` (config overrides)")
+        spec = _known_keys(_mapping(raw, f"{path}: methods.{m}"), f"{path}: methods.{m}",
+                           METHOD_KEYS)
         algo = spec.get("algo")
         if algo not in ALGO_NAMES:
             raise ExperimentError(f"{path}: methods.{m}.algo = {algo!r}; allowed: "
@@ -195,7 +211,8 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
     pairs: list[tuple[str, str]] = []
     group_seeds: dict[tuple[str, str], list[int]] = {}  # a group's own seeds (protocol suites)
     for i, group in enumerate(groups):
-        g = _mapping(group, f"{path}: experiments[{i}]")
+        g = _known_keys(_mapping(group, f"{path}: experiments[{i}]"),
+                        f"{path}: experiments[{i}]", GROUP_KEYS)
         gs = _seeds(g["seeds"], f"{path}: experiments[{i}].seeds") if "seeds" in g else seeds
         if "seeds" in b:  # a budget's seeds (e.g. a quick check's one seed) win
             gs = seeds

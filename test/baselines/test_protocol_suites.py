@@ -20,7 +20,10 @@ def test_maif10_protocol_seeds_per_method() -> None:
     seeds = Counter(r.method for r in runs)
     assert seeds["sdhn"] == seeds["mappo"] == 10
     assert all(seeds[m] == 5 for m in ("qmix", "dicg", "hgcn_mix", "sdhn_wo_lsk", "sdhn_wo_shr",
-                                       "sdhn_generator_1_layer"))
+                                       "sdhn_generator_1_layer", "sdhn_procedural_maps"))
+    procedural = next(r for r in runs if r.method == "sdhn_procedural_maps")
+    assert procedural.overrides["env.instance_set"] == "procedural"  # the method's, not the budget's
+    assert next(r for r in runs if r.method == "sdhn").overrides["env.instance_set"] == "large"
     one_layer = next(r for r in runs if r.method == "sdhn_generator_1_layer")
     assert one_layer.overrides["sdhn.generator_layers"] == 1
     assert "sdhn.generator_layers" not in next(r for r in runs if r.method == "sdhn").overrides
@@ -30,7 +33,7 @@ def test_maif10_protocol_seeds_per_method() -> None:
     assert {r.overrides["actor.init_from"] for r in runs} == {
         "models/maif-tiny-sdhn/actor.safetensors"}
     quick = load_suite(SUITES / "maif-10-protocol.yaml", "quick")
-    assert {r.seed for r in quick} == {1} and len(quick) == 8
+    assert {r.seed for r in quick} == {1} and len(quick) == 9
 
 
 def test_scaling_suite_has_every_method_on_16_and_20_from_one_start() -> None:

@@ -22,7 +22,8 @@ def test_maif10_protocol_seeds_per_method() -> None:
     assert all(seeds[m] == 5 for m in ("qmix", "dicg", "hgcn_mix", "sdhn_wo_lsk", "sdhn_wo_shr",
                                        "sdhn_generator_1_layer", "sdhn_procedural_maps"))
     procedural = next(r for r in runs if r.method == "sdhn_procedural_maps")
-    assert procedural.overrides["env.instance_set"] == "procedural"  # the method's, not the budget's
+    # the method's value, not the budget's
+    assert procedural.overrides["env.instance_set"] == "procedural"
     assert next(r for r in runs if r.method == "sdhn").overrides["env.instance_set"] == "large"
     one_layer = next(r for r in runs if r.method == "sdhn_generator_1_layer")
     assert one_layer.overrides["sdhn.generator_layers"] == 1

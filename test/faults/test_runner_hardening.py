@@ -280,9 +280,8 @@ def test_a_done_run_missing_outputs_is_not_skipped(tmp_path: Path) -> None:
 @pytest.mark.parametrize("keep_all", [False, True])
 def test_a_finished_run_keeps_only_its_newest_checkpoint_unless_told_to_keep_all(
         keep_all: bool, tmp_path: Path) -> None:
-    suite = GOOD.replace("mappo: {algo: mappo}",
-                         "mappo: {algo: mappo, set: {log.keep_checkpoints: 0}}" if keep_all
-                         else "mappo: {algo: mappo}")
+    keep_all_suite = GOOD.replace("{algo: mappo}", "{algo: mappo, set: {log.keep_checkpoints: 0}}")
+    suite = keep_all_suite if keep_all else GOOD
     logdir = _finished(tmp_path, text=suite)
     run = load_suite(tmp_path / "suite.yaml", "quick")[0]
     d = logdir / run.name

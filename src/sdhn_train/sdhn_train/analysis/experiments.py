@@ -151,7 +151,10 @@ BUDGET_KEYS = {"set": "config overrides", "seeds": "seeds that replace the suite
 GROUP_KEYS = {"methods": "method names", "tasks": "task names", "seeds": "this group's seeds"}
 
 
-def _known_keys(data: dict[str, Any], where: str, allowed: dict[str, str]) -> dict[str, Any]:
+def _section(data: Any, where: str, allowed: dict[str, str]) -> dict[str, Any]:
+    """``data`` as a mapping (``_mapping``) holding only ``allowed`` keys; ExperimentError
+    (one line naming the allowed ones) otherwise."""
+    data = _mapping(data, where)
     unknown = [str(k) for k in data if k not in allowed]
     if unknown:
         raise ExperimentError(f"{where}: unknown key(s) {', '.join(unknown)}; allowed: "
@@ -177,7 +180,7 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
     partial suite has every method on every task before more seeds). Every name is checked
     (``check_name``) and every run validated before anything is written."""
     path = Path(path)
-    data = _known_keys(read_suite(path), str(path), SUITE_KEYS)
+    data = _section(read_suite(path), str(path), SUITE_KEYS)
     name = check_name(data.get("name", path.stem), f"{path}: name")
     methods = _mapping(data.get("methods"), f"{path}: methods")
     tasks = _mapping(data.get("tasks"), f"{path}: tasks")
@@ -191,13 +194,10 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
     check_name(budget, "--budget")
     if budget not in budgets:
         raise ExperimentError(f"--budget {budget!r}: {path} defines {', '.join(budgets) or 'none'}")
-    b = _known_keys(_mapping(budgets[budget], f"{path}: budgets.{budget}"),
-                    f"{path}: budgets.{budget}", BUDGET_KEYS)
+    b = _section(budgets[budget], f"{path}: budgets.{budget}", BUDGET_KEYS)
     seeds = _seeds(b.get("seeds", data.get("seeds", [1])), f"{path}: budgets.{budget}")
-    for m, raw in methods.items():
-        spec = _known_keys(_mapping(raw, f"{path}: methods.{m}"), f"{path}: methods.{m}",
-                           METHOD_KEYS)
-        algo = spec.get("algo")
+    for m, spec in methods.items():
+        algo = _section(spec, f"{path}: methods.{m}", METHOD_KEYS).get("algo")
         if algo not in ALGO_NAMES:
             raise ExperimentError(f"{path}: methods.{m}.algo = {algo!r}; allowed: "
                                   f"{', '.join(ALGO_NAMES)}")
@@ -211,8 +211,7 @@ def load_suite(path: str | Path, budget: str) -> list[RunSpec]:
     pairs: list[tuple[str, str]] = []
     group_seeds: dict[tuple[str, str], list[int]] = {}  # a group's own seeds (protocol suites)
     for i, group in enumerate(groups):
-        g = _known_keys(_mapping(group, f"{path}: experiments[{i}]"),
-                        f"{path}: experiments[{i}]", GROUP_KEYS)
+        g = _section(group, f"{path}: experiments[{i}]", GROUP_KEYS)
         gs = _seeds(g["seeds"], f"{path}: experiments[{i}].seeds") if "seeds" in g else seeds
         if "seeds" in b:  # a budget's seeds (e.g. a quick check's one seed) win
             gs = seeds
@@ -457,9 +456,8 @@ def finish(run: RunSpec, logdir: Path, wall: float) -> dict[str, Any]:
     # A finished run resumes only to be extended (more steps), from its newest checkpoint; the
     # older ones are dead weight, and a QMIX or HGCN-MIX checkpoint holds its replay buffer
     # (2.6 GB on maif-20): three of them per finished run filled a 250 GB disk mid-suite.
-    # A suite that set log.keep_checkpoints: 0 asked to keep them all, and does.
-    if run.config(logdir).log.keep_checkpoints != 0:
-        prune_checkpoints(d, keep=1)
+    # A suite that set log.keep_checkpoints: 0 asked to keep them all (prune's 0), and does.
+    prune_checkpoints(d, keep=min(run.config(logdir).log.keep_checkpoints, 1))
     return marker
 
 

@@ -81,3 +81,22 @@ def test_actor_of_a_checkpoint_is_the_actor_the_learner_exports(algo: str, tmp_p
     assert step == t.global_step
     assert (blob.format, blob.version, blob.sha256) == (
         expected.format, expected.version, expected.sha256), "checkpoint actor differs"
+
+
+def test_actor_marks_export_once_each_and_survive_a_resume(tmp_path: Path) -> None:
+    """log.actor_marks writes actors/step_<mark> at the first iteration at or past each mark;
+    a resumed run keeps the file it already holds (one long run judged at several budgets)."""
+    from sdhn_policy.weights import load_actor_file
+
+    cfg = _cfg("mappo", tmp_path)
+    cfg.train.total_steps = 4 * 4 * 16
+    cfg.log.actor_marks = [64, 100, 10**9]  # one iteration is 4 envs x 16 steps = 64
+    t = Trainer(cfg, short_episodes, run_dir=tmp_path / "run")
+    assert t.run() == 0
+    marks = sorted(p.name for p in (tmp_path / "run" / "actors").glob("*.safetensors"))
+    assert marks == ["step_100.safetensors", "step_64.safetensors"], marks
+    first = (tmp_path / "run" / "actors" / "step_64.safetensors").read_bytes()
+    assert load_actor_file(tmp_path / "run" / "actors" / "step_64.safetensors").version == 1
+    assert load_actor_file(tmp_path / "run" / "actors" / "step_100.safetensors").version == 2
+    t.export_marked_actors()  # at the end: both exist, neither is rewritten
+    assert (tmp_path / "run" / "actors" / "step_64.safetensors").read_bytes() == first

@@ -78,3 +78,18 @@ def test_run_experiments_seeds_and_runs_filters(tmp_path: Path,
     assert "--seeds: [7]" in capsys.readouterr().err
     assert run_experiments([*common, "--runs", "rware-3__sdhn__s9"]) == 2
     assert "--runs" in capsys.readouterr().err
+
+
+def test_paper_budget_suite_shares_the_protocol_settings_and_marks_2m_and_5m() -> None:
+    """10 M steps, 5 seeds of SDHN and MAPPO (DICG optional) with maif-10-protocol's start and
+    evaluation, the actor exported at 2 M and 5 M so the protocol's 2 M point is measured."""
+    runs = load_suite(SUITES / "maif-10-paper-budget.yaml", "paper")
+    protocol = {r.method: r for r in load_suite(SUITES / "maif-10-protocol.yaml", "protocol")}
+    seeds = Counter(r.method for r in runs)
+    assert seeds == {"sdhn": 5, "mappo": 5, "dicg": 5}
+    for run in runs:
+        assert run.overrides["train.total_steps"] == 10_000_000
+        assert run.overrides["log.actor_marks"] == [2_000_000, 5_000_000]
+        same = protocol[run.method].overrides
+        for key in ("env.instance_set", "actor.init_from", "eval.interval"):
+            assert run.overrides[key] == same[key], key

@@ -48,6 +48,7 @@ RUN_FILES = ("checkpoints", "config.yaml", "metrics.csv", "actor.safetensors", "
 # Fields a resume may change: they change neither the networks, the optimiser nor the data.
 # log.root: a log directory carried to another machine (analysis/carry.py) resumes from there.
 RESUME_SAFE = frozenset({"train.total_steps", "log.checkpoint_interval", "log.keep_checkpoints",
+                         "log.actor_marks",
                          "log.progress", "log.root",
                          "log.tensorboard", "eval.interval", "train.threads",
                          "train.retain_freed_memory"})

@@ -157,6 +157,9 @@ def validate(cfg: Config, resuming: bool = False) -> None:
     for path, v in {"eval.interval": cfg.eval.interval,
                     "log.checkpoint_interval": cfg.log.checkpoint_interval}.items():
         need(v >= 0, path, "an integer >= 0 (0 = never / end only)", v)
+    need(all(isinstance(m, int) and not isinstance(m, bool) and m >= 1
+             for m in cfg.log.actor_marks), "log.actor_marks",
+         "a list of integers >= 1 (team env-steps)", cfg.log.actor_marks)
     need(cfg.log.keep_checkpoints >= 0, "log.keep_checkpoints", "an integer >= 0 (0 = keep all)",
          cfg.log.keep_checkpoints)
     need(cfg.env.max_steps is None or cfg.env.max_steps >= 1, "env.max_steps",

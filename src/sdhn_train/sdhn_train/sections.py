@@ -109,3 +109,7 @@ class LogConfig:
                                    "checkpoint holds its replay buffer, ~1.3 GB on maif-10)")
     progress: bool = opt(True, "show a progress bar")
     tensorboard: bool = opt(True, "write TensorBoard scalars")
+    actor_marks: list[int] = field(default_factory=list, metadata={"help": (
+        "team env-steps at which the actor is also exported to actors/step_<mark>.safetensors "
+        "(the first iteration at or past each mark), so one long run is judged at several "
+        "budgets; [] = the final actor only")})

@@ -195,6 +195,15 @@ class Trainer:
             samples = self.learner.hypergraphs(self.last_rollout)
         return save_ph_snapshot(self.run_dir, self.global_step, samples)
 
+    def export_marked_actors(self) -> None:
+        """``actors/step_<mark>.safetensors`` for every ``log.actor_marks`` mark now reached and
+        not yet written (a resumed run never rewrites one it already holds)."""
+        for mark in self.cfg.log.actor_marks:
+            path = self.run_dir / ACTOR_MARKS_DIR / f"step_{mark}.safetensors"
+            if self.global_step >= mark and not path.exists():
+                path.parent.mkdir(parents=True, exist_ok=True)
+                save_actor_file(path, self.learner.export_actor(version=self.learner.num_updates))
+
     # -- the loop ------------------------------------------------------------------------------
 
     def evaluate(self) -> dict[str, float]:
@@ -253,6 +262,7 @@ class Trainer:
                     self.write_ph_snapshot()
                     next_eval = _next_multiple(self.global_step, cfg.eval.interval)
                 log.write(self.global_step, metrics)
+                self.export_marked_actors()
                 if cfg.log.checkpoint_interval and self.global_step >= next_ckpt:
                     self.save_checkpoint()
                     next_ckpt = _next_multiple(self.global_step, cfg.log.checkpoint_interval)
@@ -287,6 +297,10 @@ class Trainer:
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
         print(json.dumps(summary), file=out)
         return 0
+
+
+ACTOR_MARKS_DIR = "actors"
+"""Where ``log.actor_marks`` exports go, inside the run directory."""
 
 
 class _stop_on_signals:

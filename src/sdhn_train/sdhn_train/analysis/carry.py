@@ -12,7 +12,9 @@ What is carried, per run directory (``LOGDIR/<task>__<method>__s<seed>/``):
   spec ``run.json``, the configs, ``metrics.csv``, ``train.log``, ``summary.json``,
   ``DONE.json``, the exported actor and the cached held-out evaluation, when present;
 - an unfinished run's newest checkpoint (``checkpoints/step_<n>.json`` + ``.safetensors``);
-- P_H snapshots (``hypergraph/``) of finished runs, which the figures read.
+- P_H snapshots (``hypergraph/``) of finished runs, which the figures read;
+- the actors exported at ``log.actor_marks`` (``actors/step_<n>.safetensors`` and sidecar),
+  which judge one long run at several budgets.
 
 A file over ``MAX_FILE_BYTES`` is left out and named; a checkpoint is carried whole or not at all
 (a QMIX checkpoint holds its 1.3 GB replay buffer), so such a run starts again elsewhere and the
@@ -37,6 +39,7 @@ MAX_FILE_BYTES = 20 * 1024 * 1024
 """Above this a file is not carried (a checkpoint of the networks here is ~2 MB)."""
 SKIP_PREFIXES = ("events.out.tfevents", ".")
 SNAPSHOT_DIR = "hypergraph"
+MARKED_ACTORS_DIR = "actors"  # the trainer's ACTOR_MARKS_DIR (no torch import here)
 MANIFEST = "CARRY.json"
 
 
@@ -96,6 +99,10 @@ def _carried_files(run: Path, done: bool, max_bytes: int) -> tuple[list[Path], l
         snaps = run / SNAPSHOT_DIR
         if snaps.is_dir():
             files += sorted(f.relative_to(run) for f in snaps.glob("ph_*.npz") if f.is_file())
+    marked = run / MARKED_ACTORS_DIR
+    if marked.is_dir():
+        files += sorted(f.relative_to(run) for f in marked.glob("step_*")  # + JSON sidecars
+                        if f.is_file())
     kept, left = _split_by_size(run, files, max_bytes)
     ckpt = None if done else latest_checkpoint(run)
     if ckpt is not None:

@@ -109,6 +109,7 @@ def test_shipped_params_file_starts_its_node_with_its_values(name: str, tmp_path
     ("seed: zero", "seed:"),  # a string where an integer is declared
     ("step_deadline: 0.0", "step_deadline:"),  # below the range 0.001 .. 3600
     ("episodes: -1", "episodes:"),  # below the range >= 0
+    ('conditions: "{latency: -1}"', "conditions.latency:"),  # a bad deployment condition
 ])
 def test_bad_value_in_a_params_file_is_one_line_and_exit_2(text: str, field: str,
                                                           tmp_path: Path) -> None:

@@ -13,12 +13,20 @@ next episode's first frame with :meth:`LockstepSim.reset`.
     for i in range(sim.num_robots):
         sim.submit(i, frame.episode, frame.step, action=1, version=3)
     frame, result = sim.advance()
+
+Deployment conditions (``SimConfig.conditions``, ``sdhn_sim.envs.conditions``) run through the same
+``ConditionModel`` as the in-process ``ConditionedEnv`` with B = 1: frames carry the observations
+as the robots see them (stale, noisy; ``Frame.obs_age``), ``advance`` executes the actions as the
+world applies them (lost, slow, failed robots stay). Under failures a MAIF episode ends when every
+surviving robot stands on its goal; ``last_outcome`` holds each episode's survivors' success next
+to the ideal-team result, so a run reproduces the in-process figures for the same seeds (env
+``b`` of an in-process batch seeded ``s`` = this simulator seeded ``s + b``).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -26,7 +34,16 @@ import numpy.typing as npt
 
 from sdhn_sim.drops import DropKind
 from sdhn_sim.envs import make_single_env
-from sdhn_sim.envs.registry import env_names
+from sdhn_sim.envs.api import EpisodeStats
+from sdhn_sim.envs.conditions import (
+    ConditionModel,
+    Conditions,
+    ConditionsError,
+    Outcome,
+    conditions_from_dict,
+)
+from sdhn_sim.envs.maif import MaifEnv
+from sdhn_sim.envs.registry import env_names, team_size
 from sdhn_sim.envs.single import SingleEnv
 from sdhn_sim.episode import EpisodeResult
 
@@ -48,6 +65,7 @@ class SimConfig:
     start_timeout: float = 60.0  # seconds to wait for every actor to be matched before step 0
     max_steps: int = 0  # episode step limit; 0 = the environment's default
     extra_subscribers: int = 0  # other nodes (trainer, recorder) to wait for before step 0
+    conditions: Conditions = field(default_factory=Conditions)  # the default: the ideal world
 
     def validate(self) -> None:
         """Raise SimConfigError naming the first bad field."""
@@ -74,6 +92,28 @@ class SimConfig:
         if self.extra_subscribers < 0:
             raise SimConfigError(f"extra_subscribers: got {self.extra_subscribers}; "
                                  "allowed: integers >= 0")
+        if not isinstance(self.conditions, Conditions):
+            raise SimConfigError(f"conditions: got {type(self.conditions).__name__}; allowed: "
+                                 "a Conditions (conditions_from_dict reads a YAML block)")
+        try:
+            self.conditions.validate(team_size(self.env), maif=self.env.startswith("maif"))
+        except ConditionsError as e:
+            raise SimConfigError(str(e)) from e
+
+    @staticmethod
+    def parse_conditions(block: Any) -> Conditions:
+        """A ``conditions:`` block (a mapping, or its YAML/JSON text; '' = ideal) -> Conditions;
+        SimConfigError naming the field if invalid."""
+        if isinstance(block, str):
+            import yaml  # the text of a ROS string parameter
+            try:
+                block = yaml.safe_load(block) if block.strip() else None
+            except yaml.YAMLError as e:
+                raise SimConfigError(f"conditions: not YAML ({str(e).splitlines()[0]})") from e
+        try:
+            return conditions_from_dict(block)
+        except ConditionsError as e:
+            raise SimConfigError(str(e)) from e
 
 
 @dataclass(frozen=True)
@@ -90,6 +130,7 @@ class Frame:
     terminated: bool
     truncated: bool
     missed: int  # robots that took 'stay' because their action missed the deadline
+    obs_age: npt.NDArray[np.int64] | None = None  # [N] steps old each robot's obs is (conditions)
 
     @property
     def done(self) -> bool:
@@ -118,6 +159,13 @@ class LockstepSim:
         self.num_robots = self.env.num_robots
         self.obs_size = self.env.obs_size
         self.num_actions = self.env.num_actions
+        inner = self.env.env
+        self._maif = isinstance(inner, MaifEnv)
+        self.conditions = ConditionModel(cfg.conditions, 1, self.num_robots, cfg.seed,
+                                         inner.size if isinstance(inner, MaifEnv) else None)
+        self.last_outcome: Outcome | None = None  # of the last finished episode
+        self._ep_return = 0.0
+        self._ep_collisions = 0
         self.episode = -1
         self.step = 0
         self.frame: Frame | None = None
@@ -141,10 +189,14 @@ class LockstepSim:
         self.step = 0
         self._ep_missed = 0
         self._ep_version = 0
+        self._ep_return = 0.0
+        self._ep_collisions = 0
         self._clear()
         self.instance_id = self.env.instance_id
-        self.frame = Frame(self.episode, 0, obs, state, _positions(self.env), self.instance_id,
-                           0.0, False, False, 0)
+        self.conditions.start([0], obs[None])
+        seen = self.conditions.observe(obs[None])[0]
+        self.frame = Frame(self.episode, 0, seen, state, _positions(self.env), self.instance_id,
+                           0.0, False, False, 0, self.conditions.obs_age[0].copy())
         return self.frame
 
     def _clear(self) -> None:
@@ -183,16 +235,41 @@ class LockstepSim:
         missed = int((~self._got).sum())
         self._ep_missed += missed
         self.total_missed += missed
-        res = self.env.step(self._actions.copy())
+        failed = self.conditions.failed[0].copy()  # who had failed when these actions were taken
+        applied = self.conditions.act(self._actions[None])[0]
+        res = self.env.step(applied)
         self.step += 1
         self._clear()
-        self.frame = Frame(self.episode, self.step, res.obs, res.state, _positions(self.env),
-                           self.instance_id, res.reward, res.terminated, res.truncated, missed)
+        self._ep_return += res.reward
+        if "robot_collisions" in res.info:
+            self._ep_collisions += int(np.sum(res.info["robot_collisions"]))
+        stats: EpisodeStats | None = res.info.get("episode")
+        survivors = self._maif and self.cfg.conditions.failures > 0 and bool(
+            np.all(np.all(self.env.positions == self.env.goals, axis=1) | failed))
+        done = res.terminated or res.truncated or survivors
+        obs, age = res.obs, None
+        if not done:
+            obs = self.conditions.observe(res.obs[None])[0]
+            age = self.conditions.obs_age[0].copy()
+        self.frame = Frame(self.episode, self.step, obs, res.state, _positions(self.env),
+                           self.instance_id, res.reward, res.terminated or survivors,
+                           res.truncated and not survivors, missed, age)
         result = None
-        if res.terminated or res.truncated:
+        if done:
             self.episodes_done += 1
+            if stats is None:  # the survivors' success ended the episode before the env did
+                stats = EpisodeStats(env_index=0, episode_return=self._ep_return,
+                                     length=self.step, makespan=None, completed=False,
+                                     collisions=self._ep_collisions, formation_error=0.0)
+            self.last_outcome = Outcome(
+                env_index=0, episode=int(self.conditions.episode[0]), completed=stats.completed,
+                makespan=stats.makespan, survivors_completed=stats.completed or survivors,
+                survivors_makespan=stats.makespan if stats.completed
+                else self.step if survivors else None,
+                failed=int(failed.sum()), length=self.step, deliveries=stats.deliveries,
+                stats=stats)
             result = EpisodeResult.from_stats(
-                res.info["episode"], env_name=self.cfg.env, episode=self.episode,
+                stats, env_name=self.cfg.env, episode=self.episode,
                 missed_actions=self._ep_missed, policy_version=self._ep_version,
                 instance_id=self.instance_id)
         return self.frame, result

@@ -67,12 +67,17 @@ PARAMETERS = {
     "extra_subscribers": (0, integer("other nodes (trainer, recorder) whose state and obs "
                                      "subscriptions to wait for before step 0", 0)),
     "events_file": ("", string("JSON-lines file for a supervisor's events; '' = none")),
+    "conditions": ("", string("deployment conditions: a YAML/JSON mapping of "
+                              "sdhn_sim.envs.conditions fields, e.g. '{latency: 1}'; '' = ideal")),
 }
 
 
 def sim_config(p: dict[str, Any]) -> SimConfig:
-    """The core's config from the declared parameters (types already checked by ROS)."""
-    return SimConfig(**{k: v for k, v in p.items() if k in SimConfig.__dataclass_fields__})
+    """The core's config from the declared parameters (types already checked by ROS); the
+    ``conditions`` text is parsed here (SimConfigError naming the bad field)."""
+    values = {k: v for k, v in p.items() if k in SimConfig.__dataclass_fields__}
+    values["conditions"] = SimConfig.parse_conditions(p.get("conditions", ""))
+    return SimConfig(**values)
 
 
 class SimNode(Node):
@@ -125,6 +130,7 @@ class SimNode(Node):
         self.get_logger().info(
             f"ready: env={cfg.env} robots={n} obs_size={self.sim.obs_size} seed={cfg.seed} "
             f"episodes={cfg.episodes} step_deadline={cfg.step_deadline}s "
+            f"conditions: {cfg.conditions.label()} "
             f"ns={self.get_namespace()}; waiting for "
             f"{n} actors")
 

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Set up (idempotent), then a short demo of the whole ROS stack on maif-10 with 10 robots, one
 # actor process per robot, everything started by the launcher (scripts/launch.sh):
-#   1. deploy the shipped SDHN policy (models/maif-10-sdhn): simulator + 10 actor processes +
-#      MCAP recorder, a few episodes of completed formations (success and makespan per episode),
+#   1. deploy the shipped SDHN policy (models/maif-10-sdhn) as configs/launch/deploy-maif10.yaml
+#      says (greedy with stall breaking; the demo prints it from the config): simulator + 10
+#      actor processes + MCAP recorder, a few episodes of completed formations (success and
+#      makespan per episode),
 #   2. train a short while over ROS: simulator + 10 actor processes (sampling) + trainer node,
 #      which pushes new weights versions to the actors as it learns,
 #   3. print the MCAP path, a plot of the runs (per-episode makespan and return) and a GIF of a
@@ -21,11 +23,19 @@ mkdir -p "$RUN_DIR"
 export ROS_LOG_DIR="$RUN_DIR/ros_logs" ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( $$ % 100 + 1 ))}"
 
-echo "[demo] 1/3 deploying the shipped policy $MODEL on maif-10 (sampled at temperature 0.5):" \
-     "simulator + 10 actor processes + recorder, $EPISODES episodes"
+DEPLOY=(configs/launch/deploy-maif10.yaml --set weights="$MODEL" --set run_dir="$RUN_DIR/deploy"
+        --set episodes="$EPISODES" --set status_interval=5)
+# How the actors act, read off the config the launcher runs (not restated here, where it could
+# drift from it).
+ACTIONS=$(.venv/bin/python -c 'import sys; from pathlib import Path
+from sdhn_bringup.supervisor import describe_actions, load_config
+print(describe_actions(load_config(Path(sys.argv[1]), sys.argv[2:])))' \
+  configs/launch/deploy-maif10.yaml weights="$MODEL")
+echo "[demo] 1/3 deploying the shipped policy $MODEL on maif-10 (actions $ACTIONS," \
+     "configs/launch/deploy-maif10.yaml): simulator + 10 actor processes + recorder," \
+     "$EPISODES episodes"
 sed -n '/^| who/,/^| lower/p' "$MODEL/card.md"
-scripts/launch.sh configs/launch/deploy-maif10.yaml --set weights="$MODEL" \
-  --set run_dir="$RUN_DIR/deploy" --set episodes="$EPISODES" --set status_interval=5
+scripts/launch.sh "${DEPLOY[@]}"
 
 if [ "${TRAIN:-ros}" = inprocess ]; then
   echo "[demo] 2/3 training SDHN on maif-10 in-process ($((TRAIN_EPISODES * 4096)) team steps)"

@@ -17,13 +17,14 @@ CONFIGS = sorted((ROOT / "configs" / "launch").glob("*.yaml"))
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.name for p in CONFIGS])
-def test_launch_config_validates(path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.chdir(ROOT)  # weights paths are relative to the repository root
+def test_launch_config_validates(path: Path) -> None:
+    # The file's weights: paths resolve against the repository root from any directory
+    # (test_launch_paths.py); the blank-weights override below is a --set, read from the cwd.
     raw = yaml.safe_load(path.read_text())
     # A deploy graph left without weights is run with --set weights=...: give it the shipped
     # model of its env, as the README does.
     blank = raw.get("mode") == "deploy" and not raw.get("weights")
-    cfg = load_config(path, [f"weights=models/{raw['env']}-sdhn"] if blank else [])
+    cfg = load_config(path, [f"weights={ROOT}/models/{raw['env']}-sdhn"] if blank else [])
     if cfg.mode == "deploy" and cfg.weights:
         card = resolve_weights(cfg.weights).parent / "card.json"
         if card.is_file():  # a shipped model: its card names the env it was evaluated on

@@ -43,6 +43,12 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
                           child runs in that existing network namespace via ``ip netns exec``
                           (root), with Fast DDS on UDP only and discovery on the subnet, not
                           localhost; children not named run in the launcher's own namespace)
+
+Relative paths (``weights``, ``run_dir``, ``trainer.config``) written in a launch file resolve
+against the repository root when the file lies in a ``configs/launch/`` folder (the shipped
+graphs name ``models/...``), else against the file's own folder, so a graph runs the same from
+any working directory; paths given with ``--set`` resolve against the current directory, as any
+command-line path does.
 """
 
 from __future__ import annotations
@@ -256,11 +262,45 @@ def resolve(cfg: LaunchConfig) -> LaunchConfig:
     )
 
 
+def describe_actions(cfg: LaunchConfig) -> str:
+    """How the actors choose their actions under ``cfg``, in words (the launcher's first line
+    and the demo say it, so neither can claim another mode than the one that runs)."""
+    if cfg.mode != "deploy":
+        return "sampled from the policy being trained"
+    if not cfg.greedy:
+        return f"sampled at temperature {cfg.temperature:g}"
+    if cfg.break_stalls:
+        rule = cfg.stall_rule or "the actors' default"
+        return f"greedy, with stall breaking (rule {rule})"
+    return "greedy"
+
+
 def set_trainer(cfg: LaunchConfig, key: str, value: Any) -> None:
     """One field of the pass-through trainer section (``trainer.KEY`` or a ``trainer:`` map)."""
     if not key or "." in key:
         raise LaunchConfigError(f"trainer.{key}: expected trainer.PARAMETER")
     cfg.trainer[key] = value
+
+
+PATH_FIELDS = ("weights", "run_dir")
+TRAINER_PATH_FIELDS = ("config",)  # the trainer node's config YAML
+
+
+def file_base(path: Path) -> Path:
+    """The folder a launch file's relative paths resolve against: the repository root for a
+    file in ``<root>/configs/launch/``, else the file's own folder."""
+    folder = path.resolve().parent
+    if folder.name == "launch" and folder.parent.name == "configs":
+        return folder.parent.parent
+    return folder
+
+
+def anchored(value: Any, base: Path) -> Any:
+    """``value`` made absolute against ``base`` when it is a non-empty relative path (``~``
+    expanded); anything else (unset, absolute, not a string) as it is, for validation to judge."""
+    if not isinstance(value, str) or not value:
+        return value
+    return str(base / Path(value).expanduser())  # an absolute path stays itself
 
 
 def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
@@ -272,6 +312,7 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
             raise LaunchConfigError(str(e)) from None
         if not isinstance(data, dict):
             raise LaunchConfigError(f"config: {path} must hold a mapping of fields")
+        base = file_base(path)
         for k, v in data.items():
             if str(k) == "hosts":
                 if not isinstance(v, dict):
@@ -281,9 +322,10 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
                 if not isinstance(v, dict):
                     raise LaunchConfigError(f"trainer: expected a mapping, got {v!r}")
                 for tk, tv in v.items():
-                    set_trainer(cfg, str(tk), tv)
+                    set_trainer(cfg, str(tk),
+                                anchored(tv, base) if str(tk) in TRAINER_PATH_FIELDS else tv)
             else:
-                set_field(cfg, str(k), v)
+                set_field(cfg, str(k), anchored(v, base) if str(k) in PATH_FIELDS else v)
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep:
@@ -634,7 +676,8 @@ class Launcher:
         self.write_params()
         rec = "on" if self.cfg.recorder else "off"
         self.say(f"run dir {self.run_dir}; mode {self.cfg.mode}, env {self.cfg.env}, "
-                 f"{self.cfg.robots} actor processes, recorder {rec}")
+                 f"{self.cfg.robots} actor processes (actions {describe_actions(self.cfg)}), "
+                 f"recorder {rec}")
         for child in self.children:
             child.start()
         self.say(f"started {len(self.children)} processes; logs in {self.log_dir}")

@@ -1,0 +1,77 @@
+"""Where a launch file's relative paths point: the shipped graphs (``configs/launch/``) name their
+weights from the repository root and must run from any working directory; a launch file kept
+elsewhere names them from its own folder; a ``--set`` path is the command line's, read from the
+current directory. And the launcher says how the actors act, from the config it runs."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from sdhn_bringup.supervisor import (
+    LaunchConfigError,
+    describe_actions,
+    file_base,
+    load_config,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = REPO / "configs" / "launch" / "deploy-tiny.yaml"
+TINY_WEIGHTS = REPO / "models" / "maif-tiny-sdhn" / "actor.safetensors"
+
+
+def test_a_shipped_graph_resolves_its_weights_from_another_directory(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # nothing named models/ here
+    cfg = load_config(TINY, ["run_dir=here"])
+    assert Path(cfg.weights) == TINY_WEIGHTS
+    assert Path(cfg.run_dir).resolve() == tmp_path / "here"  # --set: the current directory
+
+
+def test_a_launch_file_outside_configs_launch_reads_paths_from_its_folder(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    mine = tmp_path / "mine"
+    (mine / "w").mkdir(parents=True)
+    shutil.copy(TINY_WEIGHTS, mine / "w" / "actor.safetensors")
+    shutil.copy(TINY_WEIGHTS.with_suffix(".json"), mine / "w" / "actor.json")
+    graph = mine / "graph.yaml"
+    graph.write_text(yaml.safe_dump({"env": "maif-tiny", "weights": "w", "run_dir": "out",
+                                     "trainer": {}}))
+    monkeypatch.chdir(REPO)  # the repository root holds no w/: only the file's folder does
+    cfg = load_config(graph, [])
+    assert Path(cfg.weights) == mine / "w" / "actor.safetensors"
+    assert Path(cfg.run_dir) == mine / "out"
+    assert file_base(graph) == mine
+    assert file_base(TINY) == REPO
+
+
+def test_a_relative_path_that_is_not_there_is_named_with_where_it_was_looked_for(
+        tmp_path: Path) -> None:
+    graph = tmp_path / "graph.yaml"
+    graph.write_text("env: maif-tiny\nweights: nowhere\n")
+    with pytest.raises(LaunchConfigError, match=f"weights: {tmp_path / 'nowhere'} does not exist"):
+        load_config(graph, [])
+
+
+def test_the_launcher_runs_a_shipped_graph_from_another_directory(tmp_path: Path) -> None:
+    """The user's command, from outside the repository (the config printed, nothing started)."""
+    r = subprocess.run([sys.executable, "-m", "sdhn_bringup", str(TINY), "--print-config"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=60, check=False)
+    assert r.returncode == 0, r.stderr
+    assert Path(yaml.safe_load(r.stdout)["weights"]) == TINY_WEIGHTS
+
+
+@pytest.mark.parametrize(("sets", "says"), [
+    ([], "greedy, with stall breaking (rule 2,10,2)"),
+    (["break_stalls=false", "stall_rule="], "greedy"),
+    (["break_stalls=false", "stall_rule=", "greedy=false", "temperature=0.5"],
+     "sampled at temperature 0.5"),
+])
+def test_the_demo_graph_is_described_as_it_runs(sets: list[str], says: str) -> None:
+    cfg = load_config(REPO / "configs" / "launch" / "deploy-maif10.yaml", sets)
+    assert describe_actions(cfg) == says

@@ -1,7 +1,9 @@
 """Carrying a suite's log directory to another machine (analysis/carry.py): a finished run is
 skipped there, an unfinished one resumes from its carried checkpoint in a log directory at
 another path and ends with the same results as an uninterrupted run, and a restore never
-replaces newer progress."""
+replaces newer progress. The carried form is compact (logs packed, no checkpoint, snapshot or
+actor a finished run's reports do not read) and the reports read it as they read a log
+directory."""
 
 from __future__ import annotations
 
@@ -17,6 +19,8 @@ import yaml
 
 from sdhn_train.analysis.carry import MANIFEST, main, progress, restore, save
 from sdhn_train.analysis.experiments import DONE, load_suite, prepare, run_suite
+from sdhn_train.analysis.figures import read_run
+from sdhn_train.analysis.protocol_report import absolute_records
 from sdhn_train.checkpoint import checkpoints
 
 from .test_experiments import RESUME_SUITE, _results
@@ -95,7 +99,7 @@ def test_carry_leaves_out_a_checkpoint_too_large_to_carry_whole(tmp_path: Path) 
     assert lines[0].startswith(f"{run.name}: no checkpoint"), lines
     assert any("starts again from scratch" in x for x in lines), lines
     assert not (carried / run.name / "checkpoints").exists()
-    assert (carried / run.name / "metrics.csv").is_file()
+    assert (carried / run.name / "metrics.csv.xz").is_file()
     assert '"no checkpoint"' in (carried / MANIFEST).read_text()
 
     # Under the limit the pair goes together.
@@ -122,3 +126,59 @@ def test_carry_manifest_keeps_earlier_runs_but_forgets_removed_copies(tmp_path: 
     save(tmp_path / "second", carried)
     listed = json.loads((carried / MANIFEST).read_text())["runs"]
     assert sorted(listed) == ["maif-tiny__mappo__s1", "maif-tiny__sdhn__s1"]
+
+
+def test_a_finished_run_is_carried_compact_and_read_as_it_is(tmp_path: Path) -> None:
+    suite = tmp_path / "carry.yaml"
+    suite.write_text(SUITE)
+    run = load_suite(suite, "quick")[0]  # SDHN: it writes P_H snapshots
+    logdir = tmp_path / "logs"
+    assert run_suite([run], logdir, jobs=1, out=io.StringIO())["done"] == 1
+    d = logdir / run.name
+    snaps = sorted((d / "hypergraph").glob("ph_*.npz"))
+    assert len(snaps) >= 2, "the budget should leave several snapshots"
+    # The absolute metric as protocol_report caches it (a few records; the real one is 1,000).
+    (d / "heldout_large.json").write_text(json.dumps(
+        {"set": "heldout_large", "records": [{"success": 1, "length": 40},
+                                             {"success": 0, "length": 80}]}))
+    # A leftover checkpoint of a finished run (the runner prunes to the newest; carry drops all).
+    (d / "checkpoints").mkdir(exist_ok=True)
+    (d / "checkpoints" / "step_000000000001.json").write_text("{}")
+
+    carried = tmp_path / "carry" / "carry-quick"
+    save(logdir, carried)
+    c = carried / run.name
+    assert (c / "metrics.csv.xz").is_file() and not (c / "metrics.csv").exists()
+    assert (c / "train.log.xz").is_file() and (c / "heldout_large.json.xz").is_file()
+    assert not (c / "actor.safetensors").exists()  # its absolute metric is cached
+    assert not (c / "checkpoints").exists()
+    assert [p.name for p in (c / "hypergraph").iterdir()] == [snaps[-1].name]
+    assert (c / "metrics.csv.xz").stat().st_size < (d / "metrics.csv").stat().st_size / 4
+
+    # A report reads the carried copy as it reads the log directory.
+    here, there = read_run(d), read_run(c)
+    assert here.series.keys() == there.series.keys() and here.series
+    for tag, (steps, values) in here.series.items():
+        assert (there.series[tag][0] == steps).all() and (there.series[tag][1] == values).all()
+    assert absolute_records(there) == absolute_records(here) == {
+        "success_rate": [1.0, 0.0], "episode_length": [40.0, 80.0]}
+
+    # Restored, the logs are the trainer's own bytes again.
+    back = tmp_path / "back"
+    restore(carried, back)
+    for name in ("metrics.csv", "train.log", "heldout_large.json", "run.json", "config.yaml"):
+        assert (back / run.name / name).read_bytes() == (d / name).read_bytes(), name
+    assert not list((back / run.name).glob("*.xz"))
+
+
+def test_a_finished_run_keeps_its_actor_until_its_absolute_metric_is_cached(
+        tmp_path: Path) -> None:
+    logdir = tmp_path / "logs"
+    run = logdir / "maif-tiny__sdhn__s1"
+    run.mkdir(parents=True)
+    for name in ("run.json", "DONE.json", "actor.json"):
+        (run / name).write_text("{}")
+    (run / "actor.safetensors").write_bytes(b"\0" * 64)
+    (run / "metrics.csv").write_text("step,wall_time,tag,value\n")
+    save(logdir, tmp_path / "carried")
+    assert (tmp_path / "carried" / run.name / "actor.safetensors").is_file()

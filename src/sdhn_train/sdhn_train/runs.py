@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import ctypes
 import io
+import lzma
 import random
 import time
 from pathlib import Path
@@ -20,6 +21,41 @@ from sdhn_sim.envs.api import EpisodeStats
 from sdhn_train.learners.base import HypergraphSamples
 
 PH_DIR = "hypergraph"  # <run>/hypergraph/ph_<step>.npz
+METRICS_FILE = "metrics.csv"
+PACKED_SUFFIX = ".xz"
+"""A run carried in the repository keeps its text logs xz-compressed (``metrics.csv.xz``,
+sdhn_train.analysis.carry); the readers below take either form, so a report reads a carried
+suite as it reads a log directory."""
+
+
+def packed(path: Path) -> Path:
+    """The compressed twin of a run file (``metrics.csv`` -> ``metrics.csv.xz``)."""
+    return path.with_name(path.name + PACKED_SUFFIX)
+
+
+def run_file(path: Path) -> Path:
+    """``path`` if it exists, else its compressed twin if that does (else ``path``, for the
+    caller's own "missing" message)."""
+    return packed(path) if not path.exists() and packed(path).exists() else path
+
+
+def metrics_file(run_dir: Path) -> Path:
+    """A run's metrics log as it is on disk: ``metrics.csv``, or ``metrics.csv.xz`` carried."""
+    return run_file(run_dir / METRICS_FILE)
+
+
+def open_run_text(path: Path) -> TextIO:
+    """A run's text file for reading (UTF-8, CSV newlines), decompressed if it is packed; with
+    ``run_file``'s fallback, so ``open_run_text(run / "metrics.csv")`` reads a carried copy."""
+    path = run_file(path)
+    if path.name.endswith(PACKED_SUFFIX):
+        return lzma.open(path, "rt", encoding="utf-8", newline="")
+    return open(path, encoding="utf-8", newline="")
+
+
+def read_run_text(path: Path) -> str:
+    with open_run_text(path) as f:
+        return f.read()
 
 
 def seed_everything(seed: int, deterministic: bool, threads: int) -> np.random.Generator:

@@ -1,18 +1,25 @@
-"""Carry a suite's log directory from one machine to the next inside the repository.
+"""Carry a suite's log directory from one machine to the next inside the repository, compactly.
 
 Long suites (RWARE at 20 M steps, ten seeds per method) outlive the machine they run on: the
 machines here are handed out for a few hours and keep nothing. ``save`` copies, for every run of
 a log directory, what the runner needs to skip it (finished) or resume it (unfinished) into a
 directory of the repository; ``restore`` puts it back under a log directory on the next machine,
-where rerunning the suite's command carries on (``docs/experiments.md``).
-
-What is carried, per run directory (``LOGDIR/<task>__<method>__s<seed>/``):
+where rerunning the suite's command carries on (``docs/experiments.md``). Every byte carried
+stays in the repository's history, so a carried run is what the next machine and the reports
+need and no more (``BUDGET_BYTES`` for all of ``carry/``, enforced by a test):
 
 - its top-level files except TensorBoard event files (the curves are in ``metrics.csv``): the
-  spec ``run.json``, the configs, ``metrics.csv``, ``train.log``, ``summary.json``,
-  ``DONE.json``, the exported actor and the cached held-out evaluation, when present;
+  spec ``run.json``, the configs, ``summary.json``, ``DONE.json`` and the text logs, the logs
+  xz-compressed (``metrics.csv.xz``, ``train.log.xz``, and the cached absolute metric
+  ``heldout_large.json.xz`` / ``absolute_deliveries.json.xz``: ~8 % of their size), which the
+  metrics readers (``sdhn_train.runs``) read as they are and ``restore`` unpacks;
+- the exported actor (``actor.safetensors`` + ``actor.json``) of an unfinished run, and of a
+  finished one until its absolute metric is cached: what the report computes from it is then
+  carried instead (the shipped policies live in ``models/``);
 - an unfinished run's newest checkpoint (``checkpoints/step_<n>.json`` + ``.safetensors``);
-- P_H snapshots (``hypergraph/``) of finished runs, which the figures read;
+  a finished run carries none;
+- of the P_H snapshots (``hypergraph/``), a finished run's newest, the one the heatmaps read
+  (``figures.latest_ph``);
 - the actors exported at ``log.actor_marks`` (``actors/step_<n>.safetensors`` and sidecar),
   which judge one long run at several budgets.
 
@@ -27,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import lzma
 import shutil
 import sys
 from dataclasses import dataclass
@@ -34,6 +42,7 @@ from pathlib import Path
 
 from sdhn_train.analysis.experiments import DONE, SPEC, ExperimentError, check_name
 from sdhn_train.checkpoint import checkpoint_step, latest_checkpoint
+from sdhn_train.runs import PACKED_SUFFIX, packed
 
 MAX_FILE_BYTES = 20 * 1024 * 1024
 """Above this a file is not carried (a checkpoint of the networks here is ~2 MB)."""
@@ -41,6 +50,13 @@ SKIP_PREFIXES = ("events.out.tfevents", ".")
 SNAPSHOT_DIR = "hypergraph"
 MARKED_ACTORS_DIR = "actors"  # the trainer's ACTOR_MARKS_DIR (no torch import here)
 MANIFEST = "CARRY.json"
+PACKED_FILES = ("metrics.csv", "train.log", "heldout_large.json", "absolute_deliveries.json")
+"""Top-level text files carried xz-compressed (``<name>.xz``) and unpacked by ``restore``."""
+ABSOLUTE_CACHES = ("heldout_large.json", "absolute_deliveries.json")  # protocol_report's
+FINAL_ACTOR = ("actor.safetensors", "actor.json")
+BUDGET_BYTES = 40_000_000
+"""What all of ``carry/`` may hold (bytes of the working tree; test/test_carry_budget.py)."""
+XZ_PRESET = 6  # the default: ~8 % of a metrics.csv; -9 gains nothing on these files
 
 
 class CarryError(Exception):
@@ -91,19 +107,24 @@ def _split_by_size(run: Path, files: list[Path], max_bytes: int,
 
 def _carried_files(run: Path, done: bool, max_bytes: int) -> tuple[list[Path], list[str]]:
     """(files to carry, relative to ``run``; files left out, with why)."""
-    files: list[Path] = []
-    for f in sorted(run.iterdir()):
-        if f.is_file() and not f.is_symlink() and not f.name.startswith(SKIP_PREFIXES):
-            files.append(f.relative_to(run))
+    top = [f for f in sorted(run.iterdir())
+           if f.is_file() and not f.is_symlink() and not f.name.startswith(SKIP_PREFIXES)]
+    cached = done and any((run / c).is_file() or packed(run / c).is_file()
+                          for c in ABSOLUTE_CACHES)
+    files = [f.relative_to(run) for f in top if not (cached and f.name in FINAL_ACTOR)]
+    logs = [f for f in files if f.name in PACKED_FILES]  # always carried: packed, they are small
+    files = [f for f in files if f.name not in PACKED_FILES]
     if done:
         snaps = run / SNAPSHOT_DIR
         if snaps.is_dir():
-            files += sorted(f.relative_to(run) for f in snaps.glob("ph_*.npz") if f.is_file())
+            newest = sorted(f for f in snaps.glob("ph_*.npz") if f.is_file())[-1:]
+            files += [f.relative_to(run) for f in newest]
     marked = run / MARKED_ACTORS_DIR
     if marked.is_dir():
         files += sorted(f.relative_to(run) for f in marked.glob("step_*")  # + JSON sidecars
                         if f.is_file())
     kept, left = _split_by_size(run, files, max_bytes)
+    kept = logs + kept
     ckpt = None if done else latest_checkpoint(run)
     if ckpt is not None:
         pair = [ckpt.with_suffix(".json").relative_to(run),
@@ -116,15 +137,47 @@ def _carried_files(run: Path, done: bool, max_bytes: int) -> tuple[list[Path], l
     return kept, left
 
 
-def _copy_run(src: Path, dst: Path, files: list[Path]) -> None:
+def _is_packable(rel: Path) -> bool:
+    return len(rel.parts) == 1 and rel.name in PACKED_FILES
+
+
+def _is_packed(rel: Path) -> bool:
+    return (len(rel.parts) == 1 and rel.name.endswith(PACKED_SUFFIX)
+            and rel.name.removesuffix(PACKED_SUFFIX) in PACKED_FILES)
+
+
+def _pack(src: Path, dst: Path) -> None:
+    with open(src, "rb") as fin, lzma.open(dst, "wb", preset=XZ_PRESET) as fout:
+        shutil.copyfileobj(fin, fout, 1 << 20)
+    shutil.copystat(src, dst)
+
+
+def _unpack(src: Path, dst: Path) -> None:
+    with lzma.open(src, "rb") as fin, open(dst, "wb") as fout:
+        shutil.copyfileobj(fin, fout, 1 << 20)
+    shutil.copystat(src, dst)
+
+
+def _copy_run(src: Path, dst: Path, files: list[Path], mode: str) -> int:
     """Copy ``files`` of run ``src`` into a fresh ``dst`` (built beside it, then renamed, so a
-    crash leaves the old copy or the new one, never half of each)."""
+    crash leaves the old copy or the new one, never half of each); ``mode`` "pack" compresses
+    the text logs (``PACKED_FILES``), "unpack" restores them. Returns the bytes written."""
     tmp = dst.with_name(dst.name + ".carry-tmp")
     if tmp.exists():
         shutil.rmtree(tmp)
+    written = 0
     for rel in files:
         (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(src / rel, tmp / rel)
+        if mode == "pack" and _is_packable(rel):
+            out = packed(tmp / rel)
+            _pack(src / rel, out)
+        elif mode == "unpack" and _is_packed(rel):
+            out = tmp / rel.name.removesuffix(PACKED_SUFFIX)
+            _unpack(src / rel, out)
+        else:
+            out = tmp / rel
+            shutil.copy2(src / rel, out)
+        written += out.stat().st_size
     if dst.exists():
         old = dst.with_name(dst.name + ".carry-old")
         if old.exists():
@@ -134,18 +187,24 @@ def _copy_run(src: Path, dst: Path, files: list[Path]) -> None:
         shutil.rmtree(old)
     else:
         tmp.rename(dst)
+    return written
+
+
+def tree_bytes(root: Path) -> int:
+    """Bytes of the regular files under ``root`` (what a checkout of it holds)."""
+    return sum(f.stat().st_size for f in root.rglob("*") if f.is_file() and not f.is_symlink())
 
 
 def save(logdir: Path, dest: Path, max_file_bytes: int = MAX_FILE_BYTES) -> list[str]:
     """Carry every run of ``logdir`` into ``dest`` (replacing what ``dest`` held for those runs;
-    runs only in ``dest`` stay). Returns one line per run and per file left out."""
+    runs only in ``dest`` stay). Returns one line per run and per file left out, and one on
+    ``dest`` and, where ``dest`` lies in a ``carry/`` folder, all of it against the budget."""
     lines = []
     dest.mkdir(parents=True, exist_ok=True)
     for run in run_dirs(logdir):
         check_name(run.name, f"{run}")  # a path component we may write
         files, left = _carried_files(run, progress(run).done, max_file_bytes)
-        _copy_run(run, dest / run.name, files)
-        size = sum((run / f).stat().st_size for f in files)
+        size = _copy_run(run, dest / run.name, files, "pack")
         carried = progress(dest / run.name)  # what the next machine gets, read off the copy
         lines.append(f"{run.name}: {carried.describe()}, {len(files)} files, {size / 1e6:.1f} MB")
         lines += [f"  left out: {x}" for x in left]
@@ -154,12 +213,19 @@ def save(logdir: Path, dest: Path, max_file_bytes: int = MAX_FILE_BYTES) -> list
     runs = {r.name: progress(r).describe() for r in run_dirs(dest)}
     (dest / MANIFEST).write_text(json.dumps({"runs": runs}, indent=1,
                                             sort_keys=True) + "\n")
+    lines.append(f"{dest}: {tree_bytes(dest) / 1e6:.1f} MB")
+    if dest.resolve().parent.name == "carry":
+        total = tree_bytes(dest.resolve().parent)
+        over = " OVER BUDGET: drop finished suites' runs no report reads" \
+            if total > BUDGET_BYTES else ""
+        lines.append(f"carry/: {total / 1e6:.1f} MB of {BUDGET_BYTES / 1e6:.0f} MB{over}")
     return lines
 
 
 def restore(src: Path, logdir: Path) -> list[str]:
     """Copy the carried runs of ``src`` into ``logdir`` where they are further along than what
-    ``logdir`` holds. Returns one line per run."""
+    ``logdir`` holds, the packed logs unpacked (``metrics.csv``, as the trainer writes it and a
+    resumed run appends to it). Returns one line per run."""
     lines = []
     logdir.mkdir(parents=True, exist_ok=True)
     for run in run_dirs(src):
@@ -173,7 +239,7 @@ def restore(src: Path, logdir: Path) -> list[str]:
                              f"{carried.describe()})")
                 continue
         files = [f.relative_to(run) for f in sorted(run.rglob("*")) if f.is_file()]
-        _copy_run(run, target, files)
+        _copy_run(run, target, files, "unpack")
         lines.append(f"{run.name}: restored ({carried.describe()})")
     return lines
 

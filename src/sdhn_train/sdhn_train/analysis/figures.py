@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import csv
 import json
+import lzma
 import zipfile
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
@@ -45,7 +46,7 @@ from sdhn_sim.envs.maif_scripted import SCRIPTED_LABELS, ScriptedResult, evaluat
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.yaml_io import YamlError, load_yaml
 from sdhn_train.algorithms.registry import ALGO_NAMES
-from sdhn_train.runs import PH_DIR
+from sdhn_train.runs import PH_DIR, metrics_file, open_run_text
 
 # --- reading runs -----------------------------------------------------------------------------
 
@@ -132,8 +133,10 @@ def read_metrics(path: Path) -> dict[str, Series]:
     not a trainer's metrics.csv is a FigureError naming the file and line."""
     rows: dict[str, dict[int, float]] = defaultdict(dict)
     try:
-        with open(path, newline="", encoding="utf-8") as f:
+        with open_run_text(path) as f:
             lines = list(csv.reader(f))
+    except lzma.LZMAError as e:
+        raise FigureError(f"{path}: not an xz-compressed metrics log ({e})") from None
     except UnicodeDecodeError:
         raise FigureError(f"{path}: not a text file (a trainer metrics.csv expected)") from None
     except csv.Error as e:
@@ -196,7 +199,7 @@ def _read_spec(path: Path) -> dict[str, Any]:
 
 
 def read_run(path: Path) -> Run:
-    cfg_file, csv_file = path / "config.yaml", path / "metrics.csv"
+    cfg_file, csv_file = path / "config.yaml", metrics_file(path)
     missing = [f.name for f in (cfg_file, csv_file) if not f.is_file()]
     if missing:
         raise FigureError(f"{path} is not a finished trainer run (missing {', '.join(missing)})")
@@ -220,7 +223,7 @@ def _just_created(run: Path) -> bool:
     """A run directory the experiment runner has made (its ``run.json``) whose trainer has not
     yet written its config or metrics: what a report run beside a suite sees for a moment."""
     return ((run / "run.json").is_file() and not (run / "config.yaml").exists()
-            and not (run / "metrics.csv").exists())
+            and not metrics_file(run).exists())
 
 
 def load_runs(logdir: Path) -> list[Run]:

@@ -46,6 +46,7 @@ import numpy as np
 
 from sdhn_train.analysis import protocol_stats as ps
 from sdhn_train.analysis.figures import FigureError, Run, load_runs
+from sdhn_train.runs import read_run_text, run_file
 
 PAPER_BUDGET = "10-20M"  # team-steps per run in the paper's configs
 PAPER_MAKESPAN_RATIO = 0.77  # "a 23 % reduction in makespan compared to MAPPO"
@@ -136,8 +137,8 @@ def absolute_metric(run: Run, planner_cache: Path | None, compute: bool) -> dict
     dom = domain_of(run.task)
     cache = run.path / dom.absolute_file
     actor = run.path / "actor.safetensors"
-    if cache.is_file():
-        return dict(json.loads(cache.read_text()))
+    if run_file(cache).is_file():  # a carried suite's copy is packed
+        return dict(json.loads(read_run_text(cache)))
     if not compute or not actor.is_file():
         return None
     from sdhn_policy.actor_runtime import ActorRuntime
@@ -183,9 +184,9 @@ def absolute_records(run: Run) -> dict[str, list[float]] | None:
     """marl-eval's ``absolute_metrics`` of a run: one value per evaluation episode."""
     dom = domain_of(run.task)
     cache = run.path / dom.absolute_file
-    if not cache.is_file():
+    if not run_file(cache).is_file():
         return None
-    recs = json.loads(cache.read_text())["records"]
+    recs = json.loads(read_run_text(cache))["records"]
     if dom is RWARE:
         return {"deliveries": [float(x["deliveries"]) for x in recs]}
     return {"success_rate": [float(x["success"]) for x in recs],

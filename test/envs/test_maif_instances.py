@@ -7,11 +7,15 @@ from collections import deque
 import numpy as np
 import pytest
 
+from sdhn_sim.envs import env_names, make_env
 from sdhn_sim.envs.maif_instances import (
+    FLEET_FORMATION_CELLS_PER_ROBOT,
+    FLEET_MAP_CELLS_PER_ROBOT,
     MAIF_CONFIGS,
     SHIPPED,
     MaifConfig,
     data_path,
+    fleet_config,
     generate_instances,
     load_instances,
     reachable_from,
@@ -87,6 +91,25 @@ def test_large_configs_generate_on_demand():
         assert not data_path(name).exists()
     inst = load_instances("maif-30")
     assert inst.starts.shape == (10, 10, 30, 2)
+
+
+def test_fleet_generator_keeps_maif40_densities_and_is_registered():
+    """maif-60/100 come from fleet_config, which reproduces maif-40 and keeps its formation
+    cells and map cells per robot for any N; the sets are generated, never shipped."""
+    assert fleet_config(40) == MAIF_CONFIGS["maif-40"]
+    for n in (60, 100, 137):
+        cfg = fleet_config(n)
+        assert cfg.fs % 2 == 1 and cfg.fs**2 >= FLEET_FORMATION_CELLS_PER_ROBOT * n
+        assert (cfg.fs - 2) ** 2 < FLEET_FORMATION_CELLS_PER_ROBOT * n, "smallest such square"
+        assert cfg.size**2 >= FLEET_MAP_CELLS_PER_ROBOT * n
+        assert (cfg.size - 8) ** 2 < FLEET_MAP_CELLS_PER_ROBOT * n, "smallest such map"
+    for name, n in (("maif-60", 60), ("maif-100", 100)):
+        assert MAIF_CONFIGS[name] == fleet_config(n) and name in env_names()
+        assert not data_path(name).exists()
+    env = make_env("maif-100", num_envs=1, seed=0, instance_set="heldout")
+    assert (env.num_robots, env.obs_size) == (100, 57), "egocentric: same observation size"
+    with pytest.raises(ValueError, match="num_robots"):
+        fleet_config(0)
 
 
 def test_bad_config_rejected():

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,8 +57,33 @@ def _cfg(name: str, n: int, size: int, fs: int, seed: int) -> MaifConfig:
     return MaifConfig(name=name, num_robots=n, size=size, fs=fs, instance_seed=seed)
 
 
+FLEET_FORMATION_CELLS_PER_ROBOT = 5.6
+"""Cells of formation square per robot in the fleet sizes (maif-30: 169 / 30, maif-40: 225 / 40)."""
+FLEET_MAP_CELLS_PER_ROBOT = 9216 / 40
+"""Map cells per robot in the fleet sizes: maif-40's 96 x 96 / 40 = 230.4 (so 207 free cells per
+robot at 10 % obstacles); a larger fleet gets a larger map, not a denser one."""
+FLEET_SIZE_STEP = 8
+
+
+def fleet_config(num_robots: int, instance_seed: int | None = None) -> MaifConfig:
+    """The MAIF configuration ``maif-<N>`` for a fleet of ``num_robots`` beyond the spec's
+    sequence, keeping maif-40's densities: the formation square is the smallest odd side with
+    at least 5.6 cells per robot, the map the smallest multiple of 8 with at least 230.4 cells
+    per robot (obstacles stay at 10 %). maif-40 itself comes out of it unchanged (96, fs 15).
+    The instance seed is ``1000 + N`` like the others' unless given."""
+    n = int(num_robots)
+    if n < 1:
+        raise ValueError(f"num_robots must be an int >= 1, got {num_robots!r}")
+    fs = math.ceil(math.sqrt(FLEET_FORMATION_CELLS_PER_ROBOT * n))
+    fs += 1 - fs % 2
+    side = math.ceil(math.sqrt(FLEET_MAP_CELLS_PER_ROBOT * n) / FLEET_SIZE_STEP) * FLEET_SIZE_STEP
+    return _cfg(f"maif-{n}", n, max(side, 2 * fs), fs,
+                1000 + n if instance_seed is None else int(instance_seed))
+
+
 # maif-10/16/20 come from the spec. The sequence continues with fs += 2 and size += 16 per step
 # (about 5-6 cells of formation square per robot): 30 robots -> 80x80, fs 13; 40 -> 96x96, fs 15.
+# The fleet sizes (60, 100) come from ``fleet_config``, which keeps maif-40's densities.
 MAIF_CONFIGS: dict[str, MaifConfig] = {
     c.name: c
     for c in (
@@ -68,6 +94,8 @@ MAIF_CONFIGS: dict[str, MaifConfig] = {
         _cfg("maif-20", 20, 64, 11, 1020),
         _cfg("maif-30", 30, 80, 13, 1030),
         _cfg("maif-40", 40, 96, 15, 1040),
+        fleet_config(60),
+        fleet_config(100),
     )
 }
 SHIPPED = data_files.MAIF_SHIPPED

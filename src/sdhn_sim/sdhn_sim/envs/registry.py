@@ -2,7 +2,8 @@
 
 MAIF: ``maif-solo`` (1 robot, 12x12, fs 4), ``maif-tiny`` (4 robots, 12x12, fs 4),
 ``maif-10`` (32, fs 7), ``maif-16`` (48, fs 9),
-``maif-20`` (64, fs 11), ``maif-30`` (80, fs 13), ``maif-40`` (96, fs 15).
+``maif-20`` (64, fs 11), ``maif-30`` (80, fs 13), ``maif-40`` (96, fs 15);
+the fleet sizes ``maif-60`` (120, fs 19), ``maif-100`` (152, fs 25) from ``fleet_config``.
 Overrides: ``max_steps`` (int >= 1), ``instance_ids`` (list of ints in [0, 100)),
 ``instance_order`` ("random" | "round_robin"), ``reward`` ("corrected" (default) | "reference"),
 ``instance_set`` ("train" (default): the 100 fixed instances | "heldout": 100 instances drawn

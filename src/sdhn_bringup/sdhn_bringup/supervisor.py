@@ -30,6 +30,9 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
     stall_rule: ""        (with break_stalls: CALM,PROGRESS,SAMPLE[,T], the rule the actors
                           run; "" = their default. scripts/tune_stall_rule.py chooses one)
     step_deadline: 1.0    max_steps: 0                         instance: -1
+    clock: lockstep | realtime   rate_hz: 10.0   (realtime: the world steps rate_hz times a
+                          second with each robot's newest action, never waiting; the actors
+                          then act on their newest observation; sdhn_sim.lockstep)
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
     restart: {policy: never | on-failure, max_restarts: 3}
     managed: false        (true: actors start as unconfigured lifecycle nodes and the launcher
@@ -74,6 +77,7 @@ from sdhn_sim.data_files import fastdds_profile
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names, team_size
 from sdhn_sim.episode import CSV_FIELDS, EpisodeResult
 from sdhn_sim.litter import clean_fastdds_shm
+from sdhn_sim.lockstep import CLOCKS
 from sdhn_sim.overrides import OverrideError, set_field
 from sdhn_sim.ros import topics
 from sdhn_sim.ros.status import READY_ENV, EventReader, read_statuses
@@ -115,6 +119,8 @@ class LaunchConfig:
     break_stalls: bool = False  # deploy with greedy true: stall breaking (actor break_stalls)
     stall_rule: str = ""  # with break_stalls: the actors' stall_rule ("" = their default)
     step_deadline: float = 1.0
+    clock: str = "lockstep"  # lockstep | realtime (the simulator's clock, sdhn_sim.lockstep)
+    rate_hz: float = 10.0  # realtime: world steps per second
     max_steps: int = 0  # 0 = the environment's default
     instance: int = -1
     run_dir: str = ""  # "" = runs/<mode>-<env>-<time>
@@ -224,6 +230,11 @@ def validate(cfg: LaunchConfig) -> None:
             StallRule.parse(cfg.stall_rule)
         except ValueError as e:
             raise LaunchConfigError(f"stall_rule: {e}") from None
+    if cfg.clock not in CLOCKS:
+        raise LaunchConfigError(f"clock: got {cfg.clock!r}; allowed: {', '.join(CLOCKS)}")
+    if not (isinstance(cfg.rate_hz, int | float) and 0 < cfg.rate_hz <= 1000):
+        raise LaunchConfigError(f"rate_hz: got {cfg.rate_hz!r}; allowed: steps per second in "
+                                "(0, 1000]")
     for name in ("step_deadline", "start_timeout", "stop_timeout", "status_interval"):
         if not getattr(cfg, name) > 0:
             raise LaunchConfigError(f"{name}: must be > 0 seconds, got {getattr(cfg, name)}")
@@ -378,7 +389,8 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
         "env": cfg.env, "seed": cfg.seed, "episodes": cfg.episodes,
         "step_deadline": float(cfg.step_deadline), "instance": cfg.instance,
         "start_timeout": float(cfg.start_timeout), "max_steps": cfg.max_steps,
-        "extra_subscribers": extra, "events_file": str(status_dir(run) / SIM_EVENTS)}
+        "extra_subscribers": extra, "events_file": str(status_dir(run) / SIM_EVENTS),
+        "clock": cfg.clock, "rate_hz": float(cfg.rate_hz)}
     for i in range(cfg.robots):
         nodes[actor_node(ns, i)] = {
             "team_ns": ns, "robot_id": i, "num_robots": cfg.robots,
@@ -387,7 +399,7 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
             "temperature": float(cfg.temperature),
             "break_stalls": bool(cfg.break_stalls and cfg.mode == "deploy"),
             **({"stall_rule": cfg.stall_rule} if cfg.stall_rule else {}),
-            "env": cfg.env, "managed": cfg.managed}
+            "env": cfg.env, "managed": cfg.managed, "realtime": cfg.clock == "realtime"}
     return nodes
 
 

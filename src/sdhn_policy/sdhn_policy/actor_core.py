@@ -74,8 +74,13 @@ class ActorCore:
     def __init__(self, robot_id: int, num_robots: int, greedy: bool, seed: int,
                  runtime: ActorRuntime | None = None, *,
                  runtime_cls: type[ActorRuntime] = ActorRuntime,
-                 temperature: float = 1.0, stall_rule: StallRule | None = None) -> None:
+                 temperature: float = 1.0, stall_rule: StallRule | None = None,
+                 skip_ahead: bool = False) -> None:
         self.robot_id = robot_id
+        # Realtime clock: the world steps on without this robot, so a later step of the episode
+        # is taken (the GRU goes on from the last observation it saw); counted in ``skipped``.
+        self.skip_ahead = skip_ahead
+        self.skipped = 0  # steps of an episode never seen between two answered ones
         self.temperature = check_temperature(temperature)  # sampled play only
         if stall_rule is not None and not greedy:
             raise ValueError("stall breaking is a greedy mode (greedy must be true)")
@@ -191,12 +196,17 @@ class ActorCore:
         is dropped *without* touching the GRU state: one stray message must not reset it or make
         the real next steps look stale. An actor that has answered nothing yet (just started or
         restarted mid-episode) takes whatever comes. Step 0 is always taken: a simulator
-        restarted in episode 0 sends (0, 0) again, which a replayed step 0 cannot be told from."""
+        restarted in episode 0 sends (0, 0) again, which a replayed step 0 cannot be told from.
+        With ``skip_ahead`` (the realtime clock) a later step of the same episode is taken too;
+        a later episode already is (it resets the GRU state)."""
         if self.episode is None or self.last_step is None or step == 0:
             return None
         if (episode, step) <= (self.episode, self.last_step):
             return Drop(DropKind.STALE_STEP, f"episode {episode} step {step} is not after the last "
                         f"answered episode {self.episode} step {self.last_step}")
+        if self.skip_ahead and episode == self.episode:
+            self.skipped += step - self.last_step - 1
+            return None
         if episode != self.episode or step > self.last_step + 1:
             return Drop(DropKind.FUTURE_STEP, f"episode {episode} step {step} skips ahead of the "
                         f"last answered episode {self.episode} step {self.last_step}")

@@ -63,7 +63,7 @@ from sdhn_sim.poses import FRAME_ID, target_reader, yaw_quaternion
 from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
 from sdhn_sim.ros.params import boolean, declare, floating, integer, string
-from sdhn_sim.ros.qos import LATCHED, POSES, STEP
+from sdhn_sim.ros.qos import LATCHED, POSES, STEP, STEP_NEWEST
 from sdhn_sim.ros.runner import ConfigError, run_node
 
 PARAMETERS = {
@@ -87,6 +87,9 @@ PARAMETERS = {
                                "lifecycle_msgs services; false = configure and activate at start")),
     "env": ("", string("environment name, to read this robot's cell from its observation for "
                        "target_pose; '' = no target_pose")),
+    "realtime": (False, boolean("the simulator runs clock realtime: act on the newest "
+                                "observation (queue depth 1) and take a later step than the next "
+                                "one, the skipped steps counted")),
 }
 FAIL_AFTER = 3  # wrong-length observations before any answer that end the actor
 WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait for "
@@ -168,7 +171,7 @@ class ActorNode(LifecycleNode):
         runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
         return ActorCore(self.robot_id, p["num_robots"], p["greedy"], p["seed"], runtime,
                          runtime_cls=self.runtime_cls, temperature=p["temperature"],
-                         stall_rule=self.stall_rule)
+                         stall_rule=self.stall_rule, skip_ahead=p["realtime"])
 
     def weights_error(self, e: WeightsError) -> str:
         return f"weights_file: {self.params['weights_file']}: {e.reason}; {WEIGHTS_ALLOWED}"
@@ -247,7 +250,7 @@ class ActorNode(LifecycleNode):
                 POSES)
         self.obs_sub = self.create_subscription(
             RobotObservation, topics.absolute(self.ns, topics.robot_obs(self.robot_id)),
-            self.on_obs, STEP, raw=True)
+            self.on_obs, STEP_NEWEST if self.params["realtime"] else STEP, raw=True)
 
     def close_step_topics(self) -> None:
         if self.obs_sub is not None:
@@ -334,6 +337,8 @@ class ActorNode(LifecycleNode):
             "decision_latency_p50_ms": lat.percentile(50),
             "decision_latency_p99_ms": lat.percentile(99),
         }
+        if self.params["realtime"]:
+            values["skipped_steps"] = self.core.skipped if self.core is not None else 0
         values |= drop_values(self.drops, self._drops_window.new(self.drops))
         waiting = self.phase == "active" and self.obs_sub is None
         note = ("active, waiting for weights" if waiting else "" if self.phase == "active"

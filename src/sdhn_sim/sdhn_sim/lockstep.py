@@ -21,6 +21,16 @@ world applies them (lost, slow, failed robots stay). Under failures a MAIF episo
 surviving robot stands on its goal; ``last_outcome`` holds each episode's survivors' success next
 to the ideal-team result, so a run reproduces the in-process figures for the same seeds (env
 ``b`` of an in-process batch seeded ``s`` = this simulator seeded ``s + b``).
+
+With ``clock="realtime"`` the same object is the core of a world that steps at ``rate_hz`` and
+never waits: the node calls :meth:`advance` on a timer, and ``submit`` takes an action answering
+any step of the current episode up to the current one. Each robot's newest action not yet applied
+is applied once, at the next tick (an older one still pending is *superseded*, counted, never
+applied); a robot with none pending stays (counted as missed). Every applied action's *staleness*
+is counted: the current step minus the step of the observation it answers (0 = as in lock-step;
+k = what the in-process k-step observation latency gives). Why apply once rather than repeat the
+last action: a MAIF or RWARE action is one discrete move, so repeating it would be a move the
+policy never chose.
 """
 
 from __future__ import annotations
@@ -48,6 +58,7 @@ from sdhn_sim.envs.single import SingleEnv
 from sdhn_sim.episode import EpisodeResult
 
 STAY = 0
+CLOCKS = ("lockstep", "realtime")
 
 class SimConfigError(ValueError):
     """A simulator setting is invalid; the message names it and the allowed values."""
@@ -66,6 +77,8 @@ class SimConfig:
     max_steps: int = 0  # episode step limit; 0 = the environment's default
     extra_subscribers: int = 0  # other nodes (trainer, recorder) to wait for before step 0
     conditions: Conditions = field(default_factory=Conditions)  # the default: the ideal world
+    clock: str = "lockstep"  # lockstep: wait for all N actions; realtime: step at rate_hz
+    rate_hz: float = 10.0  # realtime: world steps per second
 
     def validate(self) -> None:
         """Raise SimConfigError naming the first bad field."""
@@ -114,6 +127,15 @@ class SimConfig:
             return conditions_from_dict(block)
         except ConditionsError as e:
             raise SimConfigError(str(e)) from e
+        if self.clock not in CLOCKS:
+            raise SimConfigError(f"clock: got {self.clock!r}; allowed: {', '.join(CLOCKS)}")
+        if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 1000):
+            raise SimConfigError(f"rate_hz: got {self.rate_hz}; allowed: steps per second in "
+                                 "(0, 1000]")
+
+    @property
+    def realtime(self) -> bool:
+        return self.clock == "realtime"
 
 
 @dataclass(frozen=True)
@@ -176,6 +198,10 @@ class LockstepSim:
         self.episodes_done = 0
         self.total_missed = 0
         self.instance_id = -1  # of the current episode, read at reset
+        # realtime: the step each robot's pending action answers (-1 = none yet this episode)
+        self._answers = np.full(self.num_robots, -1, dtype=np.int64)
+        self.staleness = RealtimeCounts()  # since start
+        self.ep_staleness = RealtimeCounts()  # this episode
 
     @property
     def finished(self) -> bool:
@@ -192,6 +218,8 @@ class LockstepSim:
         self._ep_return = 0.0
         self._ep_collisions = 0
         self._clear()
+        self._answers[:] = -1
+        self.ep_staleness = RealtimeCounts()
         self.instance_id = self.env.instance_id
         self.conditions.start([0], obs[None])
         seen = self.conditions.observe(obs[None])[0]
@@ -208,6 +236,8 @@ class LockstepSim:
         """Take one robot's action for the current step; returns a drop kind or None if taken."""
         if not 0 <= robot_id < self.num_robots:
             return DropKind.UNKNOWN_ROBOT
+        if self.cfg.realtime:
+            return self._submit_realtime(robot_id, episode, step, action, version)
         if (episode, step) < (self.episode, self.step):
             return DropKind.STALE_STEP
         if (episode, step) > (self.episode, self.step):
@@ -221,9 +251,32 @@ class LockstepSim:
         self._ep_version = max(self._ep_version, int(version))
         return None
 
+    def _submit_realtime(self, robot_id: int, episode: int, step: int, action: int,
+                         version: int) -> DropKind | None:
+        """Keep the newest action answering a step of this episode up to the current one."""
+        if episode == self.episode - 1:
+            # the answer to the last steps of the episode that just ended: too late, not bad
+            self.staleness.expired += 1
+            return None
+        if episode < self.episode or (episode == self.episode and step <= self._answers[robot_id]):
+            return DropKind.STALE_STEP  # another episode's, or not newer than one already taken
+        if episode > self.episode or step > self.step:
+            return DropKind.FUTURE_STEP
+        if not 0 <= action < self.num_actions:
+            return DropKind.ACTION_OUT_OF_RANGE
+        if self._got[robot_id]:  # a newer answer before the tick: the pending one never runs
+            self.staleness.superseded += 1
+            self.ep_staleness.superseded += 1
+        self._actions[robot_id] = action
+        self._got[robot_id] = True
+        self._answers[robot_id] = step
+        self._ep_version = max(self._ep_version, int(version))
+        return None
+
     @property
     def complete(self) -> bool:
-        """Every robot's action for the current step is in."""
+        """Every robot's action for the current step is in (realtime: every robot has one
+        pending, whichever step it answers)."""
         return bool(self._got.all())
 
     def missing(self) -> list[int]:
@@ -235,6 +288,10 @@ class LockstepSim:
         missed = int((~self._got).sum())
         self._ep_missed += missed
         self.total_missed += missed
+        if self.cfg.realtime:
+            stale = self.step - self._answers[self._got]
+            for counts in (self.staleness, self.ep_staleness):
+                counts.add(stale, missed)
         failed = self.conditions.failed[0].copy()  # who had failed when these actions were taken
         applied = self.conditions.act(self._actions[None])[0]
         res = self.env.step(applied)
@@ -273,3 +330,41 @@ class LockstepSim:
                 missed_actions=self._ep_missed, policy_version=self._ep_version,
                 instance_id=self.instance_id)
         return self.frame, result
+
+
+@dataclass
+class RealtimeCounts:
+    """What the realtime clock did to the actions: staleness of every applied action (steps
+    between the observation it answers and the step it is applied at), ticks without a pending
+    action (the robot stayed), actions superseded by a newer one before their tick."""
+
+    applied: dict[int, int] = field(default_factory=dict)  # staleness -> applied actions
+    missed: int = 0
+    superseded: int = 0
+    expired: int = 0  # answers to an episode that ended before they arrived (not applied)
+
+    def add(self, staleness: npt.NDArray[np.int64], missed: int) -> None:
+        for k, c in zip(*np.unique(staleness, return_counts=True), strict=True):
+            self.applied[int(k)] = self.applied.get(int(k), 0) + int(c)
+        self.missed += missed
+
+    @property
+    def applied_total(self) -> int:
+        return sum(self.applied.values())
+
+    @property
+    def stale(self) -> int:
+        """Applied actions that answer an older step than the one they were applied at."""
+        return sum(c for k, c in self.applied.items() if k > 0)
+
+    @property
+    def mean(self) -> float:
+        """Mean staleness of the applied actions (NaN before the first)."""
+        n = self.applied_total
+        return sum(k * c for k, c in self.applied.items()) / n if n else math.nan
+
+    def to_event(self) -> dict[str, object]:
+        """As the simulator's events hold it (JSON keys are strings)."""
+        return {"staleness": {str(k): c for k, c in sorted(self.applied.items())},
+                "stale_actions": self.stale, "superseded_actions": self.superseded,
+                "expired_actions": self.expired}

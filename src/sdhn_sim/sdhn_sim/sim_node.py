@@ -12,6 +12,12 @@ stops by itself with exit code 0; it exits 1 when the actors are not all matched
 episode's result, done, and its totals when it stops) to that file as JSON lines for a supervisor
 (:mod:`sdhn_sim.ros.status`).
 
+With ``clock:=realtime`` the world does not wait: once every robot has answered step 0 (the same
+start handshake), a timer steps it ``rate_hz`` times a second with each robot's newest action
+not yet applied, or 'stay' (:mod:`sdhn_sim.lockstep` defines what is applied and counted). Each
+episode event then also holds the staleness counts of the applied actions; ``/diagnostics`` shows
+them, with the ticks the timer ran late.
+
 Beside ours, two standard streams (docs/lifecycle-and-diagnostics.md): ``poses``
 (``geometry_msgs/PoseArray``, every robot's cell centre in frame ``map``, 1 cell = 1 m, robot i
 at index i; each step, only while someone subscribes) and ``/diagnostics`` (step rate, missed
@@ -69,6 +75,10 @@ PARAMETERS = {
     "events_file": ("", string("JSON-lines file for a supervisor's events; '' = none")),
     "conditions": ("", string("deployment conditions: a YAML/JSON mapping of "
                               "sdhn_sim.envs.conditions fields, e.g. '{latency: 1}'; '' = ideal")),
+    "clock": ("lockstep", string("lockstep: step once all N actions are in (or step_deadline); "
+                                 "realtime: step rate_hz times a second with the newest actions, "
+                                 "never waiting")),
+    "rate_hz": (10.0, floating("realtime: world steps per second", 0.001, 1000.0)),
 }
 
 
@@ -116,6 +126,10 @@ class SimNode(Node):
         # the silent robots instead of stepping with 'stay': matching is only visible from the
         # sim's side, so an actor may not yet receive from a sim that already sees it.
         self.handshake = True
+        self.stepping = False  # between the first published step and the end
+        self.realtime_timer: Timer | None = None
+        self.t_last_tick = 0.0
+        self.late_ticks = 0  # realtime: ticks that came over 1.5 periods after the previous one
         self.t_start = time.monotonic()
         self.deadline = float("inf")
         self.steps_total = 0
@@ -129,7 +143,8 @@ class SimNode(Node):
         self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
         self.get_logger().info(
             f"ready: env={cfg.env} robots={n} obs_size={self.sim.obs_size} seed={cfg.seed} "
-            f"episodes={cfg.episodes} step_deadline={cfg.step_deadline}s "
+            f"episodes={cfg.episodes} step_deadline={cfg.step_deadline}s clock={cfg.clock}"
+            + (f" rate_hz={cfg.rate_hz:g}" if cfg.realtime else "") + " "
             f"conditions: {cfg.conditions.label()} "
             f"ns={self.get_namespace()}; waiting for "
             f"{n} actors")
@@ -163,6 +178,8 @@ class SimNode(Node):
             return
         if now >= self.deadline and self.handshake and now - self.t_start < self.cfg.start_timeout:
             self.resend_first_step()
+        elif now >= self.deadline and self.cfg.realtime:
+            self.start_realtime()  # start_timeout passed: the silent robots stay from here on
         elif now >= self.deadline:
             if self._missed_logged_episode != self.sim.episode:
                 self._missed_logged_episode = self.sim.episode
@@ -184,7 +201,7 @@ class SimNode(Node):
 
     def on_action(self, robot: int, data: bytes) -> None:
         # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per action.
-        if not self.started or self.deadline == float("inf"):
+        if not self.stepping:
             self.drop(DropKind.NOT_STARTED,
                       f"action from robot {robot} before step 0 or after the end")
             return
@@ -201,8 +218,11 @@ class SimNode(Node):
         if kind is not None:
             self.drop(kind, f"robot {rid} episode {msg.episode} step {msg.step} action "
                       f"{msg.action}; now at episode {self.sim.episode} step {self.sim.step}")
-        elif self.sim.complete:
-            self.advance()
+        elif self.sim.complete and (not self.cfg.realtime or self.handshake):
+            if self.cfg.realtime:
+                self.start_realtime()
+            else:
+                self.advance()
 
     def resend_first_step(self) -> None:
         frame, silent = self.sim.frame, self.sim.missing()
@@ -212,6 +232,21 @@ class SimNode(Node):
             self.obs_pubs[i].publish(self.observation(frame, i, stamp))
         self.get_logger().info(f"first step: no answer yet from robots {silent}; re-sent")
         self.deadline = time.monotonic() + self.cfg.step_deadline
+
+    def start_realtime(self) -> None:
+        """End of the start handshake: step 0 now, then every 1 / rate_hz seconds."""
+        self.handshake = False
+        self.deadline = float("inf")
+        self.t_last_tick = time.monotonic()
+        self.realtime_timer = self.create_timer(1.0 / self.cfg.rate_hz, self.on_realtime_tick)
+        self.advance()
+
+    def on_realtime_tick(self) -> None:
+        now = time.monotonic()
+        if now - self.t_last_tick > 1.5 / self.cfg.rate_hz:
+            self.late_ticks += 1
+        self.t_last_tick = now
+        self.advance()
 
     def advance(self) -> None:
         self.handshake = False
@@ -233,6 +268,7 @@ class SimNode(Node):
             self.publish(self.sim.reset())
 
     def publish(self, f: Frame) -> None:
+        self.stepping = True
         stamp = self.get_clock().now().to_msg()
         for i, pub in enumerate(self.obs_pubs):
             pub.publish(self.observation(f, i, stamp))
@@ -244,7 +280,7 @@ class SimNode(Node):
             self.publish_state(f, stamp)
         if self.poses_pub.get_subscription_count():  # the same reasoning
             self.publish_poses(f, stamp)
-        self.deadline = (float("inf") if f.done
+        self.deadline = (float("inf") if f.done or (self.cfg.realtime and not self.handshake)
                          else time.monotonic() + self.cfg.step_deadline)
 
     def publish_state(self, f: Frame, stamp: Time) -> None:
@@ -279,6 +315,13 @@ class SimNode(Node):
             "missed_actions": missed, "missed_actions_in_window": d_missed,
             "missed_fraction_in_window": d_missed / robot_steps if robot_steps else 0.0,
         }
+        values["clock"] = self.cfg.clock
+        if self.cfg.realtime:
+            rt = self.sim.staleness
+            values |= {"rate_hz": self.cfg.rate_hz, "late_ticks": self.late_ticks,
+                       "stale_actions": rt.stale, "mean_staleness": rt.mean,
+                       "superseded_actions": rt.superseded, "expired_actions": rt.expired}
+            values |= {f"staleness/{k}": c for k, c in sorted(rt.applied.items())}
         values |= drop_values(self.drops, self._drops_window.new(self.drops))
         note = "" if self.started else f"waiting for {self.sim.num_robots} actors"
         return make_report(self.get_fully_qualified_name(), self.get_namespace(), values,
@@ -299,11 +342,19 @@ class SimNode(Node):
         m = r.to_message(EpisodeSummary())
         m.header.stamp = self.get_clock().now().to_msg()
         self.episode_pub.publish(m)
-        self.events.write("episode", **r.to_event())
+        self.events.write("episode", **r.to_event(), **self.realtime_event())
         self.get_logger().info(
             f"episode {r.episode} done: makespan={r.makespan_text} length={r.length} "
             f"return={r.episode_return:.2f} collisions={r.collisions} missed={r.missed_actions} "
             f"policy_version={r.policy_version}")
+
+    def realtime_event(self, total: bool = False) -> dict[str, Any]:
+        """The realtime counts an episode event (or, ``total``, the stop event) carries."""
+        if not self.cfg.realtime:
+            return {}
+        counts = self.sim.staleness if total else self.sim.ep_staleness
+        return {"clock": "realtime", "rate_hz": self.cfg.rate_hz, **counts.to_event(),
+                **({"late_ticks": self.late_ticks} if total else {})}
 
     def drop(self, kind: str, detail: str) -> None:
         self.drops[kind] += 1
@@ -314,6 +365,9 @@ class SimNode(Node):
         """Stop the node: flush the summaries to their subscribers, then end the spin loop."""
         self.exit_code = code
         self.tick.cancel()
+        if self.realtime_timer is not None:
+            self.realtime_timer.cancel()
+        self.stepping = False
         self.deadline = float("inf")
         self.episode_pub.wait_for_all_acked(Duration(seconds=2))
         # run_node's own stop path (flag set by its SIGTERM handler): the spin loop ends, on_stop
@@ -325,7 +379,7 @@ def _on_stop(node: Node) -> None:
     if isinstance(node, SimNode):
         # Also as data: a supervisor or test counts the steps of a run stopped mid-episode.
         node.events.write("stopped", steps=node.steps_total, missed=node.sim.total_missed,
-                          drops=dict(node.drops))
+                          drops=dict(node.drops), **node.realtime_event(total=True))
         node.get_logger().info(f"totals: {node.steps_total} steps, {node.sim.total_missed} "
                                f"missed actions, drops {dict(node.drops)}")
 

@@ -24,6 +24,16 @@ STEP = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
 )
 
+# An actor's observations under the simulator's realtime clock: the world does not wait, so an
+# actor that fell behind acts on the newest observation and skips the older ones (a robot's
+# perception does the same). Matches STEP writers: history depth is not part of QoS matching.
+STEP_NEWEST = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
 # Policy weights: late joiners (a restarted actor) must receive the latest version at once.
 LATCHED = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,

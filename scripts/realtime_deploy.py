@@ -1,0 +1,176 @@
+#!/usr/bin/env python
+"""The shipped policies deployed over ROS with the simulator's realtime clock (prints figures and
+writes JSON; not a test). Run with the venv's python, on a machine as idle as it gets:
+
+    /work/pause-training 900   # where niced training shares the machine
+    .venv/bin/python scripts/realtime_deploy.py --rates 5 10 20 --episodes 20 \
+        --out runs/realtime --json docs/results/realtime-deploy.json
+
+For each launch config (default: configs/launch/deploy-maif10.yaml and deploy-maif20.yaml, the
+cards' deployment modes) and each rate, one launcher run: simulator with ``clock: realtime`` at
+that rate, one actor process per robot, no recorder, ``--episodes`` episodes from ``--seed``
+(the same seed at every rate: the same instances in the same order). From the simulator's events
+(``status/sim-events.jsonl``) it reports per run: success rate (95 % Wilson interval), makespan
+over completed episodes (mean, 95 % t interval), the staleness of the applied actions (fraction
+at 0, 1, 2+ steps; mean), robot-steps without a new action (missed) and superseded actions, the
+ticks the timer ran late, the achieved step rate, and the load average over the run. Each run's
+episodes (instance, outcome, staleness) go into the JSON, for the in-process comparison under the
+latency condition that matches the measured staleness (``--inprocess``, once
+``sdhn_sim.envs.conditions`` is available).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ["configs/launch/deploy-maif10.yaml", "configs/launch/deploy-maif20.yaml"]
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    if n == 0:
+        return (math.nan, math.nan)
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return (max(0.0, c - h), min(1.0, c + h))
+
+
+def mean_interval(xs: list[float]) -> tuple[float, float, float]:
+    if not xs:
+        return (math.nan, math.nan, math.nan)
+    m = float(np.mean(xs))
+    if len(xs) < 2:
+        return (m, math.nan, math.nan)
+    h = float(stats.t.ppf(0.975, len(xs) - 1) * np.std(xs, ddof=1) / math.sqrt(len(xs)))
+    return (m, m - h, m + h)
+
+
+def read_events(run_dir: Path) -> list[dict[str, Any]]:
+    path = run_dir / "status" / "sim-events.jsonl"
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def summarise(events: list[dict[str, Any]]) -> dict[str, Any]:
+    eps = [e for e in events if e["event"] == "episode"]
+    stopped = next((e for e in events if e["event"] == "stopped"), {})
+    started = next((e for e in events if e["event"] == "started"), None)
+    done = [e for e in eps if e["completed"]]
+    stale: dict[int, int] = {}
+    for e in eps:
+        for k, c in e.get("staleness", {}).items():
+            stale[int(k)] = stale.get(int(k), 0) + int(c)
+    applied = sum(stale.values())
+    robot_steps = sum(e["length"] for e in eps) * (started or {}).get("robots", 0)
+    missed = sum(e["missed_actions"] for e in eps)
+    steps = sum(e["length"] for e in eps)
+    t0 = started["time"] if started else math.nan
+    t1 = eps[-1]["time"] if eps else math.nan
+    k = len(done)
+    ms = mean_interval([float(e["makespan"]) for e in done])
+    return {
+        "episodes": len(eps), "success": k / len(eps) if eps else math.nan,
+        "success_ci": wilson(k, len(eps)),
+        "makespan": ms[0], "makespan_ci": (ms[1], ms[2]),
+        "staleness": {str(s): c for s, c in sorted(stale.items())},
+        "staleness_fraction": {"0": stale.get(0, 0) / applied if applied else math.nan,
+                               "1": stale.get(1, 0) / applied if applied else math.nan,
+                               "2+": sum(c for s, c in stale.items() if s >= 2) / applied
+                               if applied else math.nan},
+        "mean_staleness": sum(s * c for s, c in stale.items()) / applied if applied else math.nan,
+        "missed_fraction": missed / robot_steps if robot_steps else math.nan,
+        "superseded": sum(e.get("superseded_actions", 0) for e in eps),
+        "late_ticks": stopped.get("late_ticks"),
+        "achieved_hz": steps / (t1 - t0) if eps and t1 > t0 else math.nan,
+        "per_episode": [{k2: e.get(k2) for k2 in (
+            "episode", "instance_id", "completed", "makespan", "length", "missed_actions",
+            "staleness", "superseded_actions")} for e in eps],
+    }
+
+
+def run_one(config: str, rate: float, args: argparse.Namespace
+            ) -> tuple[Path, float, tuple[float, float], int]:
+    episodes, seed, out, extra = args.episodes, args.seed, args.out, args.set
+    name = f"{Path(config).stem}-{rate:g}hz"
+    run_dir = out / name
+    sets = ["clock=realtime", f"rate_hz={float(rate)}", f"episodes={episodes}", f"seed={seed}",
+            "recorder=false", f"run_dir={run_dir}", f"team_ns=/rt_{name.replace('-', '_')}",
+            "status_interval=30", *extra]
+    cmd = [sys.executable, "-m", "sdhn_bringup", config, *(a for s in sets for a in ("--set", s))]
+    load0 = os.getloadavg()[0]
+    t0 = time.monotonic()
+    code = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, check=False).returncode
+    return run_dir, time.monotonic() - t0, (load0, os.getloadavg()[0]), code
+
+
+def no_nan(x: Any) -> Any:
+    """JSON has no NaN: None instead."""
+    if isinstance(x, float) and math.isnan(x):
+        return None
+    if isinstance(x, dict):
+        return {k: no_nan(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [no_nan(v) for v in x]
+    return x
+
+
+def fmt_ci(v: float, ci: tuple[float, float], digits: int = 2) -> str:
+    if math.isnan(v):
+        return "—"
+    return f"{v:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--configs", nargs="+", default=CONFIGS)
+    p.add_argument("--rates", nargs="+", type=float, default=[5.0, 10.0, 20.0])
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--seed", type=int, default=11)
+    p.add_argument("--out", type=Path, default=Path(f"runs/realtime-{time.strftime('%H%M%S')}"))
+    p.add_argument("--json", type=Path, help="write every run's figures and episodes here")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="extra launcher overrides for every run (e.g. max_steps=300)")
+    args = p.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for config in args.configs:
+        for rate in args.rates:
+            run_dir, wall, load, code = run_one(config, rate, args)
+            s = summarise(read_events(run_dir))
+            s |= {"config": config, "rate_hz": rate, "wall_s": round(wall, 1),
+                  "load_avg_1min": load, "exit_code": code, "run_dir": str(run_dir)}
+            results.append(s)
+            f = s["staleness_fraction"]
+            print(f"{Path(config).stem} {rate:g} Hz: {s['episodes']} episodes, success "
+                  f"{fmt_ci(s['success'], s['success_ci'])}, makespan "
+                  f"{fmt_ci(s['makespan'], s['makespan_ci'], 1)}; staleness 0/1/2+ "
+                  f"{f['0']:.3f}/{f['1']:.3f}/{f['2+']:.3f} (mean {s['mean_staleness']:.3f}), "
+                  f"missed {s['missed_fraction']:.3f}, superseded {s['superseded']}, late ticks "
+                  f"{s['late_ticks']}, achieved {s['achieved_hz']:.2f} Hz; {wall:.0f} s, load "
+                  f"{load[0]:.1f}->{load[1]:.1f}, exit {code}", flush=True)
+            if args.json:
+                args.json.parent.mkdir(parents=True, exist_ok=True)
+                meta = {"machine": f"{os.cpu_count()} cores", "seed": args.seed,
+                        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                        "sets": args.set}
+                args.json.write_text(json.dumps(no_nan({"meta": meta, "runs": results}), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

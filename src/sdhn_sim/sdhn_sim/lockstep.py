@@ -112,6 +112,11 @@ class SimConfig:
             self.conditions.validate(team_size(self.env), maif=self.env.startswith("maif"))
         except ConditionsError as e:
             raise SimConfigError(str(e)) from e
+        if self.clock not in CLOCKS:
+            raise SimConfigError(f"clock: got {self.clock!r}; allowed: {', '.join(CLOCKS)}")
+        if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 1000):
+            raise SimConfigError(f"rate_hz: got {self.rate_hz}; allowed: steps per second in "
+                                 "(0, 1000]")
 
     @staticmethod
     def parse_conditions(block: Any) -> Conditions:
@@ -127,11 +132,6 @@ class SimConfig:
             return conditions_from_dict(block)
         except ConditionsError as e:
             raise SimConfigError(str(e)) from e
-        if self.clock not in CLOCKS:
-            raise SimConfigError(f"clock: got {self.clock!r}; allowed: {', '.join(CLOCKS)}")
-        if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 1000):
-            raise SimConfigError(f"rate_hz: got {self.rate_hz}; allowed: steps per second in "
-                                 "(0, 1000]")
 
     @property
     def realtime(self) -> bool:

@@ -6,7 +6,7 @@
    scene, P_H image, metrics JSON) for one team state of ``--env``.
 2. The viz node's per-state path (validate, trail, and -- only if the channel has a subscriber --
    build, encode and send the scene + metrics) on the viz node's own WebSocket server
-   (sdhn_sim.viz.server), first with no client,
+   (sdhn_sim.viz.server: the Foxglove SDK's), first with no client,
    then with one ``websockets`` client (a separate process) subscribed to every channel.
 No ROS here: the ROS callback adds the same small constant in both cases.
 """
@@ -109,7 +109,7 @@ async def client(port: int, seconds: float) -> None:
     import websockets
 
     async with websockets.connect(
-        f"ws://127.0.0.1:{port}", subprotocols=["foxglove.websocket.v1"], proxy=None,
+        f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], proxy=None,
         max_size=None,
     ) as ws:
         subscribed = False
@@ -134,7 +134,7 @@ async def client(port: int, seconds: float) -> None:
 
 def overhead(env_name: str, states: int) -> None:
     msgs = team_messages(env_name, states)
-    server = VizServer("127.0.0.1", 0, 2, "bench", lambda line: None)
+    server = VizServer("127.0.0.1", 0, "bench", lambda line: None)
     idle_ms, sent = run_states(msgs, server)
     print(f"per-state cost, {env_name}, {states} states:")
     print(f"  no client:  {idle_ms:7.3f} ms/state  (scenes encoded: {sent})")

@@ -3,6 +3,7 @@ directory that does not exist, a ``--host`` that is not this machine's, an IPv6 
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import subprocess
 import sys
@@ -74,3 +75,47 @@ def test_urls_put_an_ipv6_address_in_brackets(host: str, url: str) -> None:
     from sdhn_sim.viz.server import ws_url
 
     assert ws_url(host, 8765) == url
+
+
+def test_foxglove_loop_on_a_short_file_neither_spams_nor_interleaves_and_stops_past_a_hog(
+        ) -> None:
+    """Issue 54 item 8: ``--loop`` on a short file printed a line every 40 ms; the server's
+    threads wrote into the middle of replay's lines; a client that never reads held SIGTERM."""
+    import json
+    import socket
+
+    from websockets.sync.client import connect
+
+    proc = subprocess.Popen([*REPLAY, str(FIXTURE), "--foxglove", "--port", "0", "--loop",
+                             "--rate", "1000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    first = proc.stdout.readline()
+    port = int(first.split("ws://127.0.0.1:")[1].split()[0])
+    hog = socket.create_connection(("127.0.0.1", port))  # connects, never upgrades nor reads
+    try:
+        with connect(f"ws://127.0.0.1:{port}", proxy=None,
+                     subprotocols=["foxglove.sdk.v1"]) as ws:  # type: ignore[list-item]
+            json.loads(ws.recv(timeout=10))
+            scene = next(c["id"] for c in json.loads(ws.recv(timeout=10))["channels"]
+                         if c["topic"] == "/viz/scene")
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 1, "channelId": scene}]}))
+            frames = 0
+            deadline = time.monotonic() + 3.0
+            while time.monotonic() < deadline:
+                with contextlib.suppress(TimeoutError):
+                    frames += isinstance(ws.recv(timeout=0.5), bytes)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        hog.close()
+        if proc.poll() is None:
+            proc.kill()
+    lines = (first + out).splitlines()
+    assert proc.returncode == 0, f"exit {proc.returncode}\n{out}{err}"
+    assert frames > 0, out
+    assert all(ln.startswith("replay: ") for ln in lines), lines  # whole lines, none spliced
+    served = [ln for ln in lines if "replay: served" in ln]
+    assert len(served) <= 1, f"{len(served)} progress lines in ~3 s of --loop"
+    assert any(ln.startswith("replay: stopped after") for ln in lines), lines

@@ -32,8 +32,8 @@
                    WebSocket at ws://HOST:PORT (--host 127.0.0.1, --port 8765, 0 = any free port),
                    paced by the recorded log times at --rate X (default 1); playback starts when
                    a client subscribes, ends after the last state (--loop: starts over until
-                   Ctrl-C or SIGTERM, which both end with one line and exit code 0). At most 8
-                   viewers at once, each logged (the viz node's server). A port in use (--port)
+                   Ctrl-C or SIGTERM, which both end with one line and exit code 0). The viz
+                   node's server (the Foxglove SDK's), each client logged. A port in use (--port)
                    or an address that is not this machine's (--host) is one line, exit code 2.
 
 With no action flag it prints the topics and message counts. Exit codes: 0 done (also for a
@@ -48,6 +48,7 @@ import argparse
 import os
 import signal
 import sys
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -304,8 +305,9 @@ def add_viz(rec: Recording, out: Path | None) -> int:
 
 def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool) -> int:
     """Serve the viz channels derived from ``rec`` on a Foxglove WebSocket, paced by log time.
-    The live viz node's server (its only listening socket, at most ``REPLAY_MAX_CLIENTS``
-    viewers, each logged). SIGTERM stops it as Ctrl-C does: one line, exit 0."""
+    The live viz node's server (the Foxglove SDK's, ``sdhn_sim.viz.server``), each client
+    logged. SIGTERM stops it as Ctrl-C does: one line, exit 0. Every line goes through one lock
+    (``say``): the server's threads log too, and lines never interleave."""
     from sdhn_sim.recording.reader import decode, team_kind, team_namespace
     from sdhn_sim.viz.channels import VizDeriver
     from sdhn_sim.viz.server import BindError, VizServer, ws_url
@@ -318,21 +320,22 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
             if (kind := team_kind(m.topic, m.type_name, m.encoding, ns)) is not None]
     team.sort(key=lambda mk: mk[0].log_time_ns)
     try:
-        server = VizServer(host, port, REPLAY_MAX_CLIENTS, f"sdhn replay {rec.path.name}",
-                           lambda line: print(f"replay: {line}", flush=True))
+        server = VizServer(host, port, f"sdhn replay {rec.path.name}",
+                           lambda line: say(f"replay: {line}"))
     except BindError as error:
         print(f"replay: error: --{error.field}: {error.message}", file=sys.stderr)
         return 2
     span = (team[-1][0].log_time_ns - team[0][0].log_time_ns) / 1e9 if team else 0.0
     states = sum(1 for _, k in team if k == "state")
-    sent = 0
+    sent = passes = 0
+    last_line = time.monotonic()
     # The handler before the serving line: whoever reads that line may send SIGTERM at once
     # (the default action would kill the process without its closing line).
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        print(f"replay: serving {rec.path} on {ws_url(host, server.port)} ({states} states, "
-              f"{span:.1f} s recorded, rate {rate}x); playback starts when a client subscribes, "
-              "Ctrl-C stops", flush=True)
+        say(f"replay: serving {rec.path} on {ws_url(host, server.port)} ({states} states, "
+            f"{span:.1f} s recorded, rate {rate}x); playback starts when a client subscribes, "
+            "Ctrl-C stops")
         while not server.new_subscriber.wait(0.1):
             pass
         while True:
@@ -350,21 +353,38 @@ def serve_foxglove(rec: Recording, host: str, port: int, rate: float, loop: bool
                 for v in out:
                     server.log(v.topic, v.data, v.log_time_ns)
                     sent += 1
-            print(f"replay: served {sent} viz messages ({states} states) in "
-                  f"{time.monotonic() - start:.2f} s", flush=True)
+            passes += 1
             if not loop:
+                say(f"replay: served {sent} viz messages ({states} states) in "
+                    f"{time.monotonic() - start:.2f} s")
                 time.sleep(0.5)  # let the server hand the last messages over
                 break
+            # A short file loops fast: a pass takes at least LOOP_MIN_PASS_S, and the progress
+            # line comes at most every LOOP_LINE_PERIOD_S (it came every 40 ms).
+            time.sleep(max(0.0, LOOP_MIN_PASS_S - (time.monotonic() - start)))
+            if time.monotonic() - last_line >= LOOP_LINE_PERIOD_S:
+                last_line = time.monotonic()
+                say(f"replay: served {sent} viz messages in {passes} passes")
     except KeyboardInterrupt:
-        print(f"replay: stopped after {sent} viz messages", flush=True)
+        say(f"replay: stopped after {sent} viz messages ({passes} complete passes)")
     finally:
         signal.signal(signal.SIGTERM, previous)
         server.close()
     return 0
 
 
-REPLAY_MAX_CLIENTS = 8
-"""Most viewers of ``replay --foxglove`` at once (as the viz node's default ``max_clients``)."""
+LOOP_MIN_PASS_S = 1.0
+"""Shortest pass of ``--loop`` (a file of one state would otherwise loop without pause)."""
+LOOP_LINE_PERIOD_S = 30.0
+"""``--loop`` prints its progress line at most this often."""
+_SAY = threading.Lock()
+
+
+def say(line: str) -> None:
+    """Print one whole line (the server's threads print too: one lock, one write)."""
+    with _SAY:
+        sys.stdout.write(line + "\n")
+        sys.stdout.flush()
 
 
 def _interrupt(signum: int, frame: object) -> None:

@@ -1,21 +1,27 @@
-"""The viz WebSocket server: the Foxglove WebSocket protocol (``foxglove.websocket.v1``) on one
-listening socket that we own, with a connection limit and a log of who connects.
+"""The viz WebSocket server: the Foxglove SDK's server (``foxglove.start_server``, written in Rust
+and maintained by Foxglove) with our channels, a connection log and a bounded shutdown.
 
-It replaces the Foxglove SDK's server, which binds a port of its own: behind a gate in front
-of it, any local process could still connect to that loopback port directly, past the limit and
-unlogged. Here the only listening socket is this server's, so every connection is counted
-(``max_clients``; more are logged and closed at once), logged with its address and the Origin
-of its upgrade request, and given ``HANDSHAKE_TIMEOUT_S`` to complete the WebSocket handshake.
+The SDK speaks the Foxglove WebSocket protocol (subprotocol ``foxglove.sdk.v1``, which the
+Foxglove app offers); it parses every client message itself, keeps one subscription per channel
+and client, and gives each client a bounded outgoing queue (``message_backlog_size``: the oldest
+data message goes when full), so a viewer that never reads costs the others nothing. What this
+module adds around it:
 
-What it speaks (enough for the Foxglove app and for ``test/ros/test_viz.py``'s client): on
-connect ``serverInfo`` and ``advertise`` (every channel, schema from
-:func:`sdhn_sim.viz.channels.channel_specs`); from the client ``subscribe`` / ``unsubscribe``;
-to the client binary message data (opcode 1, subscription id, log time, payload). Anything
-else a client sends is ignored. Each client has a bounded outgoing queue drained by its own
-thread: a slow viewer loses its oldest data messages (counted), it never blocks the caller of
-:meth:`VizServer.log` (a ROS callback). Stdlib + ``websockets``; no ROS.
+- the five viz channels with the schemas of :func:`sdhn_sim.viz.channels.channel_specs` (the same
+  ones recordings carry), in a ``foxglove.Context`` of its own;
+- the SDK's own log lines about clients (``Registered client ADDR``, ``Unregistered client``,
+  invalid messages, full queues) passed to ``log`` one whole line at a time, cut to
+  ``MAX_LOG_LINE`` characters and at most ``LOG_BURST`` lines per ``LOG_WINDOW_S`` (a client that
+  sends garbage in a loop cannot flood the node's log);
+- :meth:`VizServer.close` that returns within ``CLOSE_TIMEOUT_S``: the SDK's ``stop()`` waits for
+  every client to take its close frame, forever for one that never reads (measured: still
+  waiting after 200 s), so it runs on a thread of its own and the process may exit past it.
 
-    server = VizServer("127.0.0.1", 8765, max_clients=8, name="sdhn viz", log=print)
+What the SDK does not offer, and this module therefore does not either: a limit on connected
+clients, the Origin of an upgrade request, a deadline for a connection that never upgrades. The
+default host is loopback; viewers on other machines come through an SSH tunnel (docs/foxglove.md).
+
+    server = VizServer("127.0.0.1", 8765, name="sdhn viz", log=print)
     if server.has_sinks("/viz/scene"):
         server.log("/viz/scene", scene.encode(), time.time_ns())
     server.close()
@@ -23,41 +29,26 @@ thread: a slow viewer loses its oldest data messages (counted), it never blocks 
 
 from __future__ import annotations
 
-import base64
-import contextlib
-import errno
 import ipaddress
-import json
 import logging
-import queue
-import socket
-import struct
+import re
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
-from websockets.exceptions import ConnectionClosed
-from websockets.http11 import Request
-from websockets.protocol import State
-from websockets.server import ServerProtocol
-from websockets.sync.server import Server, ServerConnection
-from websockets.typing import Subprotocol
+import foxglove
+from foxglove.websocket import ChannelView, Client, ServerListener
 
 from sdhn_sim.viz.channels import VIZ_TOPICS, channel_specs
 
-SUBPROTOCOLS = [Subprotocol("foxglove.websocket.v1"), Subprotocol("foxglove.sdk.v1")]
-HANDSHAKE_TIMEOUT_S = 10.0
-CLOSE_TIMEOUT_S = 2.0  # a refused upgrade or a closing client: the slot is free after this
-MAX_INCOMING = 64 * 1024  # bytes per client message (a client only sends small JSON ops)
-OUTGOING_QUEUE = 1024  # messages per client; the oldest data message goes when full
-MESSAGE_DATA = 1  # binary opcode of the Foxglove WebSocket protocol
-
-# websockets logs a failed handshake or a client that drops with a traceback; this server says
-# what matters in its own lines (connected, Origin, disconnected), so the library stays quiet.
-_QUIET = logging.getLogger("sdhn_sim.viz.server.websockets")
-_QUIET.addHandler(logging.NullHandler())
-_QUIET.propagate = False
+SUBPROTOCOL = "foxglove.sdk.v1"  # the one the SDK's server accepts (the app offers it)
+MESSAGE_BACKLOG = 1024  # outgoing messages per client; the oldest data message goes when full
+CLOSE_TIMEOUT_S = 2.0  # close() waits this long for the SDK's stop(), then lets it go
+MAX_LOG_LINE = 300  # characters of one SDK log line passed on (a client's junk is echoed in it)
+LOG_BURST = 20  # SDK lines passed on per window; more are counted and reported with the next
+LOG_WINDOW_S = 10.0
+_SDK_LOGGER = "foxglove.websocket"
+_QUIET_PREFIXES = ("Started server", "Shutting down", "Shutdown complete")  # said by us instead
 
 
 class BindError(OSError):
@@ -79,211 +70,126 @@ def ws_url(host: str, port: int) -> str:
     return f"ws://{host}:{port}"
 
 
-def listen(host: str, port: int) -> socket.socket:
-    """A listening TCP socket on (host, port); :class:`BindError` naming ``host`` when the
-    address is unknown or not one of this machine's, ``port`` when the port is taken or not
-    allowed."""
-    try:
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-    except (socket.gaierror, UnicodeError) as e:
-        raise BindError("host", f"cannot resolve {host!r} ({e})") from None
-    family, _, _, _, address = infos[0]
-    try:
-        return socket.create_server(address, family=family, reuse_port=False)
-    except OSError as e:
-        where = ws_url(host, port).removeprefix("ws://")
-        field = "host" if e.errno in (errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT) else "port"
-        raise BindError(field, f"cannot serve on {where} ({e.strerror or e})") from None
+def bind_error(host: str, port: int, error: Exception) -> BindError:
+    """The SDK's bind failure as a :class:`BindError`: ``host`` for an address that is unknown or
+    not this machine's, ``port`` for a port taken or not allowed."""
+    reason = str(error).removeprefix("FoxgloveError: ").removeprefix("Failed to bind port: ")
+    host_fault = ("lookup address" in reason or "os error 99)" in reason
+                  or "os error 97)" in reason or "invalid socket address" in reason.lower())
+    where = ws_url(host, port).removeprefix("ws://")
+    return BindError("host" if host_fault else "port", f"cannot serve on {where} ({reason})")
 
 
-class _Client:
-    """One connected viewer: its subscriptions and its outgoing queue."""
+class _SubscribeEvents(ServerListener):
+    """Sets ``new_subscriber`` when a client subscribes (the node then sends the static map)."""
 
-    def __init__(self, who: str, conn: ServerConnection) -> None:
-        self.who = who
-        self.conn = conn
-        self.subscriptions: dict[int, int] = {}  # subscription id -> channel id
-        self.outgoing: queue.Queue[str | bytes | None] = queue.Queue(OUTGOING_QUEUE)
-        self.dropped = 0
+    def __init__(self, event: threading.Event) -> None:
+        self.event = event
 
-    def put_final(self) -> None:
-        """Tell the sender thread to end (after what is queued, or at once when full)."""
-        with contextlib.suppress(queue.Full):
-            self.outgoing.put_nowait(None)
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+        self.event.set()
+
+    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
+        return None
+
+
+class _LineLog(logging.Handler):
+    """Passes the SDK's records to ``log``: whole lines, bounded in length and in rate."""
+
+    def __init__(self, log: Callable[[str], None]) -> None:
+        super().__init__(logging.INFO)
+        self.out = log
+        self.window_start = time.monotonic()
+        self.in_window = 0
+        self.suppressed = 0
+        self._lines = threading.Lock()  # one line at a time from the SDK's threads
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+        except Exception:  # a record that cannot be formatted is not worth a traceback
             return
-        with contextlib.suppress(queue.Empty):
-            self.outgoing.get_nowait()
-        with contextlib.suppress(queue.Full):
-            self.outgoing.put_nowait(None)
-
-    def put(self, item: str | bytes) -> None:
-        while True:
-            try:
-                self.outgoing.put_nowait(item)
+        if text.startswith(_QUIET_PREFIXES):
+            return
+        text = re.sub(r"\s+", " ", text)
+        if len(text) > MAX_LOG_LINE:
+            text = text[:MAX_LOG_LINE] + f"... ({len(text)} characters)"
+        with self._lines:
+            now = time.monotonic()
+            if now - self.window_start >= LOG_WINDOW_S:
+                self.window_start, self.in_window = now, 0
+            if self.in_window >= LOG_BURST:
+                self.suppressed += 1
                 return
-            except queue.Full:
-                with contextlib.suppress(queue.Empty):
-                    self.outgoing.get_nowait()
-                    self.dropped += 1
+            self.in_window += 1
+            if self.suppressed:
+                self.out(f"server: {self.suppressed} more log lines suppressed "
+                         f"(at most {LOG_BURST} per {LOG_WINDOW_S:.0f} s)")
+                self.suppressed = 0
+            self.out(f"server: {text}")
+
+    def flush_suppressed(self) -> None:
+        with self._lines:
+            if self.suppressed:
+                self.out(f"server: {self.suppressed} more log lines suppressed")
+                self.suppressed = 0
 
 
 class VizServer:
-    def __init__(self, host: str, port: int, max_clients: int, name: str,
-                 log: Callable[[str], None]) -> None:
+    """The viz channels served by the Foxglove SDK on ``host:port`` (``port`` 0: any free one,
+    then in ``self.port``). :class:`BindError` when it cannot listen."""
+
+    def __init__(self, host: str, port: int, name: str, log: Callable[[str], None],
+                 backlog: int = MESSAGE_BACKLOG) -> None:
         self.name = name
-        self.max_clients = max_clients
         self.log_line = log
-        self.refused = 0
         self.new_subscriber = threading.Event()
-        self.channels = {topic: k + 1 for k, topic in enumerate(VIZ_TOPICS)}
-        self._advertise = json.dumps({"op": "advertise", "channels": [
-            self._channel_json(topic, cid) for topic, cid in self.channels.items()]})
-        self._clients: set[_Client] = set()
-        self._pending = 0  # accepted, not yet handshaken (they count against max_clients)
-        self._lock = threading.Lock()
-        self._session = str(time.time_ns())
-        self.sock = listen(host, port)
-        self.port = int(self.sock.getsockname()[1])
-        # websockets' connections want their server (for its shutdown flag); its own accept
-        # loop (serve_forever) never runs: ours above counts and logs every connection first.
-        self._ws = Server(self.sock, lambda _sock, _addr: None, logger=_QUIET)
-        self._thread = threading.Thread(target=self._accept, name="viz-server", daemon=True)
-        self._thread.start()
+        self.context = foxglove.Context()
+        specs = channel_specs()
+        self.channels = {
+            topic: foxglove.Channel(
+                topic, context=self.context, message_encoding=specs[topic].message_encoding,
+                schema=foxglove.Schema(name=specs[topic].schema_name,
+                                       encoding=specs[topic].schema_encoding,
+                                       data=specs[topic].schema_data))
+            for topic in VIZ_TOPICS}
+        self._handler = _LineLog(log)
+        sdk_log = logging.getLogger(_SDK_LOGGER)
+        sdk_log.setLevel(logging.INFO)
+        sdk_log.propagate = False  # its lines go through the handler only, not twice via root
+        sdk_log.addHandler(self._handler)
+        try:
+            self._server = foxglove.start_server(
+                name=name, host=host, port=port, context=self.context,
+                server_listener=_SubscribeEvents(self.new_subscriber),
+                message_backlog_size=backlog)
+        except RuntimeError as error:
+            sdk_log.removeHandler(self._handler)
+            raise bind_error(host, port, error) from None
+        self.port = int(self._server.port)
+        self._closed = False
 
-    @staticmethod
-    def _channel_json(topic: str, cid: int) -> dict[str, Any]:
-        spec = channel_specs()[topic]
-        schema = (base64.b64encode(spec.schema_data).decode() if spec.schema_encoding ==
-                  "protobuf" else spec.schema_data.decode())
-        return {"id": cid, "topic": topic, "encoding": spec.message_encoding,
-                "schemaName": spec.schema_name, "schema": schema,
-                "schemaEncoding": spec.schema_encoding}
-
-    # -- the caller's side
     def has_sinks(self, topic: str) -> bool:
         """True when a connected client subscribes to ``topic`` (else nothing need be built)."""
-        cid = self.channels[topic]
-        with self._lock:
-            return any(cid in c.subscriptions.values() for c in self._clients)
+        return bool(self.channels[topic].has_sinks())
 
     def log(self, topic: str, data: bytes, log_time_ns: int) -> None:
-        """Queue ``data`` for every client subscribed to ``topic`` (never blocks)."""
-        cid = self.channels[topic]
-        with self._lock:
-            targets = [(c, sub) for c in self._clients
-                       for sub, ch in c.subscriptions.items() if ch == cid]
-        for client, sub in targets:
-            client.put(struct.pack("<BIQ", MESSAGE_DATA, sub, log_time_ns) + data)
+        """Queue ``data`` for every client subscribed to ``topic`` (never blocks on a client)."""
+        self.channels[topic].log(data, log_time=log_time_ns)
 
-    @property
-    def active(self) -> int:
-        with self._lock:
-            return len(self._clients) + self._pending
-
-    def close(self) -> None:
-        self._ws.socket_closed.set()  # a handshake still under way is refused
-        with contextlib.suppress(OSError):  # wakes the accept loop (close alone does not)
-            self.sock.shutdown(socket.SHUT_RDWR)
-        self.sock.close()
-        with self._lock:
-            clients = list(self._clients)
-        for c in clients:
-            with contextlib.suppress(Exception):
-                c.conn.close()
-
-    # -- connections
-    def _accept(self) -> None:
-        while True:
-            try:
-                sock, addr = self.sock.accept()
-            except OSError:
-                return  # closed
-            who = f"{addr[0]}:{addr[1]}"
-            with self._lock:
-                full = len(self._clients) + self._pending >= self.max_clients
-                if full:
-                    self.refused += 1
-                else:
-                    self._pending += 1
-                n = len(self._clients) + self._pending
-            if full:
-                self.log_line(f"refused {who}: {self.max_clients} clients connected "
-                              "(max_clients)")
-                sock.close()
-                continue
-            self.log_line(f"client connected from {who} ({n}/{self.max_clients})")
-            threading.Thread(target=self._serve, args=(sock, who), name=f"viz {who}",
-                             daemon=True).start()
-
-    def _serve(self, sock: socket.socket, who: str) -> None:
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, True)
-        conn = ServerConnection(
-            sock, ServerProtocol(subprotocols=SUBPROTOCOLS, max_size=MAX_INCOMING, logger=_QUIET),
-            self._ws,
-            close_timeout=CLOSE_TIMEOUT_S)
-        client = _Client(who, conn)
-        def origin(_conn: ServerConnection, request: Request) -> None:
-            """Log where the upgrade request comes from as soon as it is read."""
-            self.log_line(f"client {who}: Origin {request.headers.get('Origin', 'none')[:200]}")
-
-        try:
-            conn.handshake(process_request=origin, timeout=HANDSHAKE_TIMEOUT_S)
-            if conn.protocol.state is not State.OPEN:
-                return  # not a WebSocket upgrade: answered with an HTTP error
-            conn.start_keepalive()
-            with self._lock:
-                self._pending -= 1
-                self._clients.add(client)
-            sender = threading.Thread(target=self._send, args=(conn, client), daemon=True)
-            sender.start()
-            client.put(json.dumps({"op": "serverInfo", "name": self.name, "capabilities": [],
-                                   "supportedEncodings": [], "metadata": {},
-                                   "sessionId": self._session}))
-            client.put(self._advertise)
-            for raw in conn:
-                if isinstance(raw, str):
-                    self._on_text(client, raw)
-        except (ConnectionClosed, OSError, TimeoutError, ValueError):
-            pass  # a client that leaves, times out or speaks something else: just gone
-        except Exception as e:
-            self.log_line(f"client {who}: closed ({type(e).__name__})")
-        finally:
-            with self._lock:
-                if client in self._clients:
-                    self._clients.discard(client)
-                else:
-                    self._pending -= 1
-            client.put_final()
-            with contextlib.suppress(Exception):
-                conn.close()
-            with contextlib.suppress(OSError):
-                sock.close()
-            lost = f" ({client.dropped} messages dropped: slow client)" if client.dropped else ""
-            self.log_line(f"client {who} disconnected{lost}")
-
-    def _send(self, conn: ServerConnection, client: _Client) -> None:
-        with contextlib.suppress(ConnectionClosed, OSError):
-            while (item := client.outgoing.get()) is not None:
-                conn.send(item)
-
-    def _on_text(self, client: _Client, raw: str) -> None:
-        """``subscribe`` / ``unsubscribe``; anything else (or malformed) is ignored."""
-        try:
-            op = json.loads(raw)
-            if not isinstance(op, dict):
-                return
-            if op.get("op") == "subscribe":
-                known = set(self.channels.values())
-                subs = {int(s["id"]): int(s["channelId"]) for s in op.get("subscriptions", [])
-                        if int(s["channelId"]) in known}
-                with self._lock:
-                    client.subscriptions.update(subs)
-                if subs:
-                    self.new_subscriber.set()
-            elif op.get("op") == "unsubscribe":
-                with self._lock:
-                    for sub in op.get("subscriptionIds", []):
-                        client.subscriptions.pop(int(sub), None)
-        except (ValueError, TypeError, KeyError, AttributeError, RecursionError,
-                OverflowError):
-            return
+    def close(self) -> bool:
+        """Stop serving. True when the SDK's stop() returned within ``CLOSE_TIMEOUT_S``; False
+        when a client that does not read still holds it (logged; the process may exit anyway)."""
+        if self._closed:
+            return True
+        self._closed = True
+        stopper = threading.Thread(target=self._server.stop, name="viz-server-stop", daemon=True)
+        stopper.start()
+        stopper.join(CLOSE_TIMEOUT_S)
+        self._handler.flush_suppressed()
+        logging.getLogger(_SDK_LOGGER).removeHandler(self._handler)
+        if stopper.is_alive():
+            self.log_line(f"server: a client did not take its close frame within "
+                          f"{CLOSE_TIMEOUT_S:.0f} s; stopped without it")
+            return False
+        return True

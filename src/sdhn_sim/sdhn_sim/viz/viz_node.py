@@ -1,8 +1,8 @@
 """Viz node: serves the team's state, hypergraphs and metrics to Foxglove over a WebSocket.
 
 Subscribes to ``{team_ns}/state``, ``{team_ns}/hypergraph`` and ``{team_ns}/episode`` and serves a
-Foxglove WebSocket (``sdhn_sim.viz.server``: the only socket it listens on, with a connection
-limit and a log of who connects; protobuf ``foxglove.*`` schemas and JSON) with channels
+Foxglove WebSocket (``sdhn_sim.viz.server``: the Foxglove SDK's server, loopback by default, its
+client log passed to the node's log; protobuf ``foxglove.*`` schemas and JSON) with channels
 ``/viz/scene``, ``/viz/hypergraph`` (SceneUpdate), ``/viz/hypergraph/p_h`` (RawImage),
 ``/viz/metrics`` and ``/viz/episodes`` (JSON). Parsing, drawing and state live in ``world``,
 ``draw`` and ``renderer`` (ROS-free).
@@ -55,8 +55,6 @@ PARAMETERS = {
     "host": ("127.0.0.1", string("address the Foxglove WebSocket server binds")),
     "port": (8765, integer("Foxglove WebSocket port; 0 = any free port", 0, 65535)),
     "trail_length": (12, integer("steps of trail drawn behind each robot", 1, 10_000)),
-    "max_clients": (8, integer("most WebSocket clients connected at once (more are refused and "
-                               "logged)", 1, 1000)),
 }
 
 
@@ -77,8 +75,7 @@ class VizNode(Node):
         _check_params(team_ns, env, host)
 
         try:
-            self.server = VizServer(host, port, int(p["max_clients"]), "sdhn viz",
-                                    self.get_logger().info)
+            self.server = VizServer(host, port, "sdhn viz", self.get_logger().info)
         except BindError as error:
             raise ConfigError(f"{error.field}: {error.message}") from None
 

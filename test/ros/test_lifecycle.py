@@ -12,6 +12,7 @@ as nav2's lifecycle manager would); ``ros2 lifecycle`` (our CLI) is a third proc
 
 from __future__ import annotations
 
+import os
 import subprocess
 import time
 from collections.abc import Callable
@@ -141,18 +142,41 @@ def test_managed_actor_acts_only_while_active(weights: Path, manager: Manager) -
         stop_all(procs[1:])
 
 
-@pytest.mark.parametrize("manager", ["/sdhn_lc_bad"], indirect=True)
-def test_configure_with_bad_weights_fails_and_the_node_stays_alive(
-        tmp_path: Path, manager: Manager) -> None:
-    ns, m = "/sdhn_lc_bad", manager
-    actor = f"{ns}/robot_0/actor"
+def bad_weights_file(tmp_path: Path, case: str) -> tuple[Path, dict[str, Any], str]:
+    """(file, extra actor parameters, a word the configure error must name)."""
+    if case == "fifo":  # opening it blocked the executor: lifecycle services stopped answering
+        fifo = tmp_path / "actor.safetensors"
+        os.mkfifo(fifo)
+        (tmp_path / "actor.json").write_text("{}")
+        return fifo, {}, "not a regular file"
+    if case == "crafted_onnx":  # hidden_out [X, 3] passed configure, then killed the actor
+        from faults.crafted_onnx import Craft, crafted
+
+        from sdhn_policy.weights import ActorSpec
+
+        spec = ActorSpec(obs_size=57, num_actions=5, hidden_sizes=(8,), gru_hidden=4)
+        onnx_file = tmp_path / "actor.onnx"
+        onnx_file.write_bytes(crafted(Craft(hidden_width=3), spec))
+        return onnx_file, {"backend": "onnx"}, "hidden_out"
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a safetensors file")
-    with node_processes(actor_cmd(0, N, ns, weights_file=bad, managed=True)) as (proc,):
+    return bad, {}, "weights_file"
+
+
+@pytest.mark.parametrize("case", ["garbage", "fifo", "crafted_onnx"])
+@pytest.mark.parametrize("manager", ["/sdhn_lc_bad"], indirect=True)
+def test_configure_with_bad_weights_fails_and_the_node_stays_alive(
+        tmp_path: Path, manager: Manager, case: str) -> None:
+    ns, m = "/sdhn_lc_bad", manager
+    actor = f"{ns}/robot_0/actor"
+    bad, params, named = bad_weights_file(tmp_path, case)
+    with node_processes(actor_cmd(0, N, ns, weights_file=bad, managed=True, **params)) as (proc,):
         assert m.change(actor, "configure") is False, proc.output
         assert m.state(actor) == "unconfigured"
         assert proc.proc.poll() is None, proc.output
         assert proc.wait_for_line("configure failed: weights_file:", timeout=5), proc.output
+        failed = [ln for ln in proc.lines if "configure failed" in ln]
+        assert len(failed) == 1 and named in failed[0], proc.output
         # Another process, with our ros2 CLI (ros2cli has no wheels), sees the same.
         got = subprocess.run([*ROS2, "lifecycle", "get", actor], capture_output=True, text=True,
                              timeout=60, check=False)

@@ -20,7 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sdhn_policy.actor_runtime import ActorRuntime, check_temperature
+from sdhn_policy.actor_runtime import (
+    ActorRuntime,
+    NonFiniteLogitsError,
+    PolicyOutputError,
+    check_temperature,
+)
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
 from sdhn_sim.drops import DropKind
@@ -181,11 +186,28 @@ class ActorCore:
         greedy, temperature = self.greedy, self.temperature
         if self.stalls is not None and self.stalls.update(obs[None])[0]:
             greedy, temperature = False, self.stalls.rule.temperature
-        action, logp, self.hidden = self.runtime.act(obs[None], self.hidden, greedy,
-                                                     self.rng, robot_id=self.robot_id,
-                                                     temperature=temperature)
+        try:
+            action, logp, h_next = self.runtime.act(obs[None], self.hidden, greedy, self.rng,
+                                                    robot_id=self.robot_id,
+                                                    temperature=temperature)
+        except NonFiniteLogitsError as e:  # counted and logged by the node; never an action
+            return self._unanswered(step, e.h_next, Drop(DropKind.NON_FINITE_LOGITS, str(e)))
+        except PolicyOutputError as e:
+            return self._unanswered(step, None, Drop(DropKind.BAD_POLICY_OUTPUT, str(e)))
+        self.hidden = h_next
         self.last_step = step
         return Decision(int(action[0]), float(logp[0]), self.runtime.version)
+
+    def _unanswered(self, step: int, h_next: npt.NDArray[np.float32] | None, drop: Drop) -> Drop:
+        """A step the policy could not answer: taken (the next step is in order, not 'future'),
+        the GRU state carried on when it is finite, else back to zeros."""
+        assert self.runtime is not None
+        if h_next is not None and np.isfinite(h_next).all():
+            self.hidden = h_next
+        else:
+            self.hidden = self.runtime.initial_state(1)
+        self.last_step = step
+        return drop
 
     def _order(self, episode: int, step: int) -> Drop | None:
         """Drop an observation from the past or the future of the episode being answered.

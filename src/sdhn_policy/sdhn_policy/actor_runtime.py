@@ -67,6 +67,19 @@ def choose_actions(logp: npt.NDArray[np.floating], greedy: bool, rng: np.random.
     return np.asarray(np.minimum((cdf < u).sum(axis=-1), logp.shape[1] - 1), dtype=np.int64)
 
 
+class PolicyOutputError(ValueError):
+    """A forward pass whose outputs break the actor's contract (shape, type): no action."""
+
+
+class NonFiniteLogitsError(PolicyOutputError):
+    """The forward pass gave NaN/Inf logits: no action can be chosen from them. ``h_next`` is
+    the next hidden state it computed (the caller keeps it if finite)."""
+
+    def __init__(self, message: str, h_next: F32) -> None:
+        super().__init__(message)
+        self.h_next = h_next
+
+
 class ActorRuntime:
     """The shared actor's forward pass on NumPy arrays; immutable once built."""
 
@@ -160,8 +173,18 @@ class ActorRuntime:
     ) -> tuple[npt.NDArray[np.int64], F32, F32]:
         """Pick actions: returns (action [X], log-prob of it under the policy [X], next hidden
         [X, H]). Sampled play draws from softmax(logits / ``temperature``); the log-prob
-        returned is always the policy's own (temperature 1), the one PPO trains on."""
-        logits, h_next = self.step(obs, hidden, robot_id)
-        logp = log_softmax(logits)
+        returned is always the policy's own (temperature 1), the one PPO trains on.
+        NonFiniteLogitsError when a logit is NaN/Inf (never an action chosen from them)."""
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported below
+            logits, h_next = self.step(obs, hidden, robot_id)
+            logp = log_softmax(logits)
+        if not np.isfinite(logits).all():  # argmax/sampling would still pick something
+            raise NonFiniteLogitsError(
+                f"the policy computed non-finite logits "
+                f"{np.array2string(logits[0], precision=3)[:200]}; no action", h_next)
         action = choose_actions(logp, greedy, rng, temperature)
-        return action, logp[np.arange(len(action)), action], h_next
+        chosen = logp[np.arange(len(action)), action]
+        if not np.isfinite(chosen).all():  # finite logits so far apart that float32 overflows
+            raise NonFiniteLogitsError("the chosen action's log-probability is not finite "
+                                       "(logits overflow float32); no action", h_next)
+        return action, chosen, h_next

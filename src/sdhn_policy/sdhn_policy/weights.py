@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 import struct
 import tempfile
 from dataclasses import asdict, dataclass
@@ -366,14 +367,39 @@ def save_actor_file(path: str | os.PathLike[str], blob: ActorWeights) -> None:
     atomic_write_bytes(path, blob.payload)
 
 
+def read_regular_file(path: str | os.PathLike[str], limit: int = 1 << 30) -> bytes:
+    """The bytes of ``path`` if it is a regular file of at most ``limit`` bytes; WeightsError
+    otherwise. Checked before opening: opening a FIFO blocks until a writer comes (an actor's
+    executor stopped answering its lifecycle services), and a device never ends."""
+    p = Path(path)
+    try:
+        info = os.stat(p)
+    except FileNotFoundError:
+        raise WeightsError(f"missing weights file: {p}") from None
+    except OSError as e:
+        raise WeightsError(f"cannot read {p}: {e.strerror}") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise WeightsError(f"{p} is a directory, not a weights file")
+    if not stat.S_ISREG(info.st_mode):
+        raise WeightsError(f"{p} is not a regular file (a FIFO, socket or device); allowed: a "
+                           "regular file")
+    if info.st_size > limit:
+        raise WeightsError(f"{p} is {info.st_size} bytes; allowed: at most {limit}")
+    try:
+        return p.read_bytes()
+    except OSError as e:
+        raise WeightsError(f"cannot read {p}: {e.strerror}") from None
+
+
 def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
     """Read and validate a weights file written by :func:`save_actor_file`."""
     path = Path(path)
+    side_bytes = read_regular_file(sidecar_path(path), 1 << 20)
+    payload = read_regular_file(path)
     try:
-        side = bounded_json.loads(sidecar_path(path).read_bytes())
+        side = bounded_json.loads(side_bytes)
         if not isinstance(side, dict):
             raise TypeError(f"expected a JSON object, got {type(side).__name__}")
-        payload = path.read_bytes()
         entry = side
         previous = side.get("previous")
         if (
@@ -385,12 +411,6 @@ def load_actor_file(path: str | os.PathLike[str]) -> ActorWeights:
         blob = ActorWeights(
             str(entry["format"]), int(entry["version"]), payload, str(entry["sha256"])
         )
-    except FileNotFoundError as e:
-        raise WeightsError(f"missing weights file: {e.filename}") from e
-    except IsADirectoryError as e:
-        raise WeightsError(f"{e.filename} is a directory, not a weights file") from e
-    except OSError as e:
-        raise WeightsError(f"cannot read {e.filename}: {e.strerror}") from e
     except (KeyError, TypeError, ValueError, OverflowError) as e:
         raise WeightsError(f"weights sidecar {sidecar_path(path)} is malformed: "
                            f"{_short(repr(e))}") from e

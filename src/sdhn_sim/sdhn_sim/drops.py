@@ -41,6 +41,8 @@ class DropKind(StrEnum):
     NON_FINITE_STATE = "non_finite_state"
     ACTION_OUT_OF_RANGE = "action_out_of_range"
     BAD_LOG_PROB = "bad_log_prob"  # log-prob not finite or > 0
+    NON_FINITE_LOGITS = "non_finite_logits"  # the policy computed NaN/Inf logits: no action
+    BAD_POLICY_OUTPUT = "bad_policy_output"  # the policy's outputs break its contract (shape)
     # policy weights (actors)
     NO_WEIGHTS = "no_weights"  # an observation arrived before any policy weights
     UNKNOWN_FORMAT = "unknown_format"
@@ -84,6 +86,8 @@ DESCRIPTIONS: dict[DropKind, str] = {
     DropKind.NON_FINITE_STATE: "NaN/Inf in a state",
     DropKind.ACTION_OUT_OF_RANGE: "action out of range",
     DropKind.BAD_LOG_PROB: "log_prob not finite or > 0",
+    DropKind.NON_FINITE_LOGITS: "NaN/Inf logits from the policy (no action sent)",
+    DropKind.BAD_POLICY_OUTPUT: "policy outputs of the wrong shape or type (no action sent)",
     DropKind.NO_WEIGHTS: "no policy weights yet",
     DropKind.UNKNOWN_FORMAT: "unknown weights format",
     DropKind.BAD_SHA256: "weights sha256 mismatch",

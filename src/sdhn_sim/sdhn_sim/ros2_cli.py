@@ -5,17 +5,25 @@ package's console scripts and runs it in this process with the remaining argumen
 ``ros2 run`` would run ``lib/<package>/<executable>``. ``ros2 pkg executables [<package>]`` lists
 them. ``ros2 lifecycle get <node>`` and ``ros2 lifecycle set <node> <transition>`` drive a managed
 node through the standard ``lifecycle_msgs`` services, as ros2cli's verbs do
-(:mod:`sdhn_sim.ros.lifecycle_client`). Only these verbs exist; anything else fails with the list.
+(:mod:`sdhn_sim.ros.lifecycle_client`). ``ros2 topic``, ``node``, ``param`` and ``bag`` are the
+everyday verbs, each in its own module (:mod:`sdhn_sim.ros2_topic`, :mod:`sdhn_sim.ros2_node`,
+:mod:`sdhn_sim.ros2_param`, :mod:`sdhn_sim.ros2_bag`; docs/ros2-tools.md). Only these verbs exist;
+anything else fails with the list.
 """
 
 from __future__ import annotations
 
+import importlib
 import sys
 from importlib import metadata
 
 PACKAGES = ("sdhn_sim", "sdhn_policy", "sdhn_train")
 USAGE = ("usage: ros2 run <package> <executable> [args ...] | ros2 pkg executables [<package>] | "
-         "ros2 lifecycle get <node> | ros2 lifecycle set <node> <transition>")
+         "ros2 lifecycle get <node> | ros2 lifecycle set <node> <transition> | "
+         "ros2 topic list|echo|hz|info ... | ros2 node list|info ... | "
+         "ros2 param list|get|set|dump ... | ros2 bag info|play|record ...")
+VERB_MODULES = {"topic": "sdhn_sim.ros2_topic", "node": "sdhn_sim.ros2_node",
+                "param": "sdhn_sim.ros2_param", "bag": "sdhn_sim.ros2_bag"}
 LIFECYCLE_TIMEOUT_S = 10.0
 
 
@@ -37,6 +45,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args[:1] == ["lifecycle"]:
         return lifecycle(args[1:])
+    if args[:1] and args[0] in VERB_MODULES:
+        # Imported on use: `ros2 run` must not pay for rclpy graph code it does not need.
+        module = importlib.import_module(VERB_MODULES[args[0]])
+        return int(module.main(args[1:]))
     if len(args) < 3 or args[0] != "run":
         print(USAGE, file=sys.stderr)
         return 2

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.deploy_contract import write_deploy_json
 from sdhn_policy.stall_breaker import StallRule
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_train.analysis.heldout_eval import (
@@ -136,6 +137,9 @@ def update_card(model: Path, entry: dict[str, Any]) -> None:
         md = md[:md.index(TITLE)].rstrip("\n") + "\n"
     _write_atomic(model / "card.json", json.dumps(card, indent=2) + "\n")
     _write_atomic(model / "card.md", md.rstrip("\n") + "\n\n" + section(entry))
+    if (model / "actor.onnx").exists():  # the deployment mode just chosen, for ONNX users
+        spec = ActorRuntime.from_file(model / "actor.safetensors").spec
+        write_deploy_json(model, spec, "maif")
 
 
 def main(argv: list[str] | None = None) -> int:

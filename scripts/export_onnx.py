@@ -1,5 +1,7 @@
 #!/usr/bin/env python3
-"""Write ``actor.onnx`` and its I/O contract ``actor.onnx.json`` next to an actor's weights.
+"""Write ``actor.onnx``, its I/O contract ``actor.onnx.json`` and, for a model folder with a
+``card.json``, ``deploy.json`` (observation layout, deployment mode, stall rule:
+sdhn_policy.deploy_contract) next to an actor's weights.
 
     .venv/bin/python scripts/export_onnx.py models/maif-10-sdhn          # a model folder
     .venv/bin/python scripts/export_onnx.py runs/x/actor.safetensors     # or a weights file
@@ -18,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.deploy_contract import write_deploy_json
 from sdhn_policy.onnx_export import write_onnx
 from sdhn_policy.onnx_runtime import OnnxActorRuntime
 from sdhn_policy.weights import WeightsError, decode_weights, load_actor_file
@@ -43,6 +46,8 @@ def export(weights: Path) -> Path:
     if err > TOLERANCE:
         out.unlink()
         raise WeightsError(f"onnxruntime differs from the NumPy runtime by {err:.2e}")
+    if (weights.parent / "card.json").exists():
+        write_deploy_json(weights.parent, spec, _family(spec.obs_size, spec.features))
     return out
 
 

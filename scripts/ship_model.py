@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.deploy_contract import write_deploy_json
 from sdhn_policy.deploy_eval import (
     RWARE_EVAL_SEED,
     SETS,
@@ -165,12 +166,13 @@ def ship(args: argparse.Namespace, tmp: Path) -> int:
     (staged / "card.json").write_text(json.dumps(card, indent=2) + "\n")
     (staged / "card.md").write_text(markdown(card, args.note))
     blob = load_actor_file(actor)  # the ONNX form beside it, with its I/O contract
-    write_onnx(staged / "actor.onnx", *decode_weights(blob), env_family=family,
-               version=blob.version)
+    spec, tensors = decode_weights(blob)
+    write_onnx(staged / "actor.onnx", spec, tensors, env_family=family, version=blob.version)
+    write_deploy_json(staged, spec, family)  # how to deploy it, from the card just written
     _check_out(args.out, args.run_dir)  # again: it may have changed during the evaluation
     args.out.mkdir(parents=True, exist_ok=True)
-    files = ("actor.safetensors", "actor.json", "actor.onnx", "actor.onnx.json", "card.md",
-             "card.json")
+    files = ("actor.safetensors", "actor.json", "actor.onnx", "actor.onnx.json", "deploy.json",
+             "card.md", "card.json")
     for f in files:
         shutil.copyfile(staged / f, args.out / f"{f}.tmp")
     for f in files:

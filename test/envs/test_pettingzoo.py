@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -87,3 +88,40 @@ def test_example_trains_through_pettingzoo_only(tmp_path: Path) -> None:
     changes = [float(r.split(",")[-1]) for r in rows[1:]]
     assert all(c > 0 for c in changes), f"the policy's parameters did not move: {changes}"
     assert "import sdhn_train" not in (ROOT / "scripts" / "example_pettingzoo_ppo.py").read_text()
+
+
+def play_planner(name: str, max_steps: int) -> tuple[dict[str, Any], Any]:
+    """One episode driven by the centralised planner (completes MAIF instances), through the
+    PettingZoo API; returns the last step's infos and the twin SingleEnv's EpisodeStats."""
+    from sdhn_sim.envs.maif_scripted import PlannerPolicy
+
+    env = parallel_env(name, seed=2, max_steps=max_steps)
+    twin = make_single_env(name, seed=2, max_steps=max_steps)
+    env.reset(seed=3)
+    twin.reset(seed=3)
+    planner, infos, res = PlannerPolicy(seed=0), {}, None
+    while env.agents:
+        joint = planner.act(env.env.env)[0]
+        _o, _r, _t, _tr, infos = env.step({a: int(joint[i])
+                                           for i, a in enumerate(env.possible_agents)})
+        res = twin.step(joint)
+    assert res is not None
+    return infos["robot_0"]["episode"], res.info["episode"]
+
+
+@pytest.mark.parametrize(("max_steps", "completed"), [(200, True), (3, False)])
+def test_episode_metrics_are_numbers_with_documented_sentinels(max_steps: int,
+                                                               completed: bool) -> None:
+    """TorchRL and BenchMARL keep numeric info leaves only: no None, ever; the project's own
+    EpisodeStats comes back from them unchanged."""
+    from sdhn_sim.envs.pettingzoo_env import NOT_APPLICABLE, NOT_COMPLETED, episode_from_info
+
+    info, stats = play_planner("maif-tiny", max_steps)
+    assert all(isinstance(v, int | float) and not isinstance(v, bool) for v in info.values()), info
+    assert info["completed"] == int(completed) and stats.completed == completed, (info, stats)
+    if completed:
+        assert info["makespan"] == stats.makespan and info["makespan"] > 0, info
+    else:
+        assert info["makespan"] == NOT_COMPLETED and stats.makespan is None, info
+    assert info["deliveries"] == NOT_APPLICABLE
+    assert episode_from_info(info) == stats

@@ -15,7 +15,11 @@ global state a centralised critic trains on. Rewards are per robot where the env
 them (MAIF's per-robot terms, RWARE's individual delivery reward); their sum is the team reward
 the in-process trainer uses. When the episode ends every agent is terminated or truncated at once
 and ``agents`` becomes empty, as PettingZoo's parallel API requires. ``infos[agent]["episode"]``
-on the last step holds the episode's metrics (completed, makespan, deliveries, ...).
+on the last step holds the episode's metrics, every one a number (TorchRL and BenchMARL keep
+numeric leaves only): ``completed`` 1 or 0, ``makespan`` the steps until every robot was on its
+goal or ``NOT_COMPLETED`` (-1) when the episode did not complete, ``deliveries`` RWARE's count or
+``NOT_APPLICABLE`` (-1) elsewhere; :func:`episode_from_info` gives back the project's
+``EpisodeStats`` (``None`` for "not completed").
 
 ``JointEnv`` is the same environment as one Gymnasium env (observation [N, D], a
 ``MultiDiscrete([A] * N)`` joint action, the team reward); ``register_gymnasium_envs()`` registers
@@ -33,11 +37,14 @@ import numpy.typing as npt
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from .api import EpisodeStats
 from .maif import MaifEnv
 from .registry import env_names, make_single_env
 from .single import SingleEnv
 
 GYM_NAMESPACE = "sdhn"
+NOT_COMPLETED = -1  # infos' makespan of an episode that did not complete (EpisodeStats: None)
+NOT_APPLICABLE = -1  # infos' deliveries in an environment without deliveries (MAIF)
 MAIF_OBS_BOUNDS = (0.0, 2.0)  # coordinates in [0, 1]; window cells 0 free, 1 obstacle, 2 robot
 
 
@@ -103,7 +110,7 @@ class SdhnParallelEnv(ParallelEnv):
         infos: dict[str, dict[str, Any]] = {a: {} for a in self.agents}
         if episode is not None:
             for a in self.agents:
-                infos[a]["episode"] = asdict(episode)
+                infos[a]["episode"] = episode_info(episode)
         out = (
             self._split(res.obs),
             {a: float(rewards[i]) for i, a in enumerate(self.possible_agents)},
@@ -125,6 +132,24 @@ class SdhnParallelEnv(ParallelEnv):
 
     def close(self) -> None:
         pass
+
+
+def episode_info(episode: EpisodeStats) -> dict[str, int | float]:
+    """An episode's metrics with numbers only (see the module docstring for the sentinels)."""
+    d = asdict(episode)
+    d["completed"] = int(episode.completed)
+    d["makespan"] = NOT_COMPLETED if episode.makespan is None else int(episode.makespan)
+    d["deliveries"] = NOT_APPLICABLE if episode.deliveries is None else int(episode.deliveries)
+    return d
+
+
+def episode_from_info(info: dict[str, Any]) -> EpisodeStats:
+    """The project's ``EpisodeStats`` of ``infos[agent]["episode"]`` (sentinels back to None)."""
+    d = dict(info)
+    d["completed"] = bool(d["completed"])
+    d["makespan"] = None if d["makespan"] == NOT_COMPLETED else int(d["makespan"])
+    d["deliveries"] = None if d["deliveries"] == NOT_APPLICABLE else int(d["deliveries"])
+    return EpisodeStats(**d)
 
 
 def parallel_env(name: str, seed: int = 0, render_mode: str | None = None,

@@ -5,8 +5,9 @@
   ros2 bag info does not print: each topic's offered QoS as recorded. BAG is a bare ``.mcap``
   file (read from its summary, or message by message when the summary is missing) or a bag
   directory with ``metadata.yaml`` (read from it, as rosbag2 does).
-- ``play BAG [-r RATE] [--wait-for-all-acked MS]``: ``sdhn_sim replay FILE --rate RATE``
-  (every topic with its recorded QoS, reliable topics flow-controlled).
+- ``play BAG [-r RATE] [-d S] [--wait-for-all-acked MS]``: ``sdhn_sim replay FILE --rate RATE
+  --wait S`` (every topic with its recorded QoS, reliable topics flow-controlled; first waits up
+  to S seconds until every topic has a subscriber).
 - ``record [-a] [-o OUT] [-s mcap] [--team-ns NS]``: the recorder node (``sdhn_sim
   recorder``): every topic of the team namespace into the bag directory OUT (default
   ``rosbag2_<date>-<time>`` as ros2 bag names it; a name ending ``.mcap`` is a bare file), until
@@ -230,6 +231,8 @@ def parser() -> argparse.ArgumentParser:
     play = sub.add_parser("play", help="publish a bag's messages at their recorded pace")
     play.add_argument("bag_path", type=Path)
     play.add_argument("-r", "--rate", type=float, default=1.0)
+    play.add_argument("-d", "--delay", type=float, default=2.0, metavar="S",
+                      help="wait up to S seconds for every topic to have a subscriber first")
     play.add_argument("-s", "--storage", default="mcap", choices=["mcap"])
     play.add_argument("--wait-for-all-acked", type=int, default=10000, metavar="MS",
                       help="milliseconds to wait for reliable subscribers' acknowledgements")
@@ -256,6 +259,7 @@ def main(argv: list[str]) -> int:
             from sdhn_sim.recording import replay
 
             return replay.main([str(mcap_of(args.bag_path)), "--rate", str(args.rate),
+                                "--wait", str(args.delay),
                                 "--ack-timeout", str(args.wait_for_all_acked / 1000.0)])
     except (BagError, QosFormatError) as e:
         print(f"ros2 bag {args.verb}: {e}", file=sys.stderr)

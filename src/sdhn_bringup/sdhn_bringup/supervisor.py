@@ -34,6 +34,9 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
                           second with each robot's newest action, never waiting; the actors
                           then act on their newest observation; sdhn_sim.lockstep)
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
+    recorder: {format: mcap | bag}   (true = mcap: <run_dir>/recording.mcap, one bare MCAP file;
+                          bag: <run_dir>/recording/, a rosbag2 bag directory with
+                          recording_0.mcap and metadata.yaml; --set recorder.format=bag)
     restart: {policy: never | on-failure, max_restarts: 3}
     managed: false        (true: actors start as unconfigured lifecycle nodes and the launcher
                           drives each one configure -> activate through the standard
@@ -126,6 +129,7 @@ class LaunchConfig:
     run_dir: str = ""  # "" = runs/<mode>-<env>-<time>
     team_ns: str = "/sdhn"
     recorder: bool = True
+    recorder_format: str = "mcap"  # mcap (a bare .mcap file) | bag (a rosbag2 bag directory)
     wait_for_observers: bool = True  # the sim waits for trainer/recorder subscriptions at step 0
     start_timeout: float = 60.0
     stop_timeout: float = 10.0  # seconds from SIGINT to SIGKILL when stopping a child
@@ -191,6 +195,9 @@ def validate(cfg: LaunchConfig) -> None:
         raise LaunchConfigError(f"env: unknown {cfg.env!r}; allowed: {', '.join(env_names())}")
     if cfg.mode not in MODES:
         raise LaunchConfigError(f"mode: got {cfg.mode!r}; allowed: {', '.join(MODES)}")
+    if cfg.recorder_format not in RECORDER_FORMATS:
+        raise LaunchConfigError(f"recorder.format: got {cfg.recorder_format!r}; allowed: "
+                                f"{', '.join(RECORDER_FORMATS)}")
     n = team_size(cfg.env)
     if cfg.robots not in (0, n):
         raise LaunchConfigError(f"robots: {cfg.env} has {n} robots, got {cfg.robots}; "
@@ -314,6 +321,33 @@ def anchored(value: Any, base: Path) -> Any:
     return str(base / Path(value).expanduser())  # an absolute path stays itself
 
 
+RECORDER_FORMATS = ("mcap", "bag")
+RECORDER_KEYS = ("enabled", "format")
+
+
+def set_recorder(cfg: LaunchConfig, value: Any, key: str = "") -> None:
+    """``recorder: true|false``, ``recorder: {format: bag, enabled: true}`` or (``--set``)
+    ``recorder.format=bag``: a mapping turns the recorder on unless it says ``enabled: false``."""
+    if key:
+        value = {key: value}
+    if not isinstance(value, dict):
+        set_field(cfg, "recorder", value)
+        return
+    unknown = [str(k) for k in value if str(k) not in RECORDER_KEYS]
+    if unknown:
+        raise LaunchConfigError(f"recorder.{unknown[0]}: unknown field; allowed: "
+                                f"{', '.join(RECORDER_KEYS)}")
+    if "format" in value:
+        cfg.recorder_format = str(value["format"])
+    set_field(cfg, "recorder", value.get("enabled", True))
+
+
+def recording_path(cfg: LaunchConfig, run: Path) -> Path:
+    """Where the recorder writes: a bare file, or a bag directory (recorder_node's rule: an
+    output not ending in .mcap is a rosbag2 bag directory)."""
+    return run / ("recording" if cfg.recorder_format == "bag" else "recording.mcap")
+
+
 def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
     cfg = LaunchConfig()
     if path is not None:
@@ -329,6 +363,8 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
                 if not isinstance(v, dict):
                     raise LaunchConfigError(f"hosts: expected a mapping, got {v!r}")
                 cfg.hosts.update({str(hk): str(hv) for hk, hv in v.items()})
+            elif str(k) == "recorder":
+                set_recorder(cfg, v)
             elif str(k) == "trainer":
                 if not isinstance(v, dict):
                     raise LaunchConfigError(f"trainer: expected a mapping, got {v!r}")
@@ -349,6 +385,8 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
             cfg.hosts[key.strip().removeprefix("hosts.")] = str(parsed)
         elif key.strip().startswith("trainer."):
             set_trainer(cfg, key.strip().removeprefix("trainer."), parsed)
+        elif key.strip() == "recorder" or key.strip().startswith("recorder."):
+            set_recorder(cfg, parsed, key.strip().removeprefix("recorder").removeprefix("."))
         else:
             set_field(cfg, key.strip(), parsed)
     validate(cfg)
@@ -379,7 +417,7 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
     nodes: NodeParameters = {}
     if cfg.recorder:
         nodes[topics.absolute(ns, "recorder")] = {
-            "team_ns": ns, "output": str(run / "recording.mcap")}
+            "team_ns": ns, "output": str(recording_path(cfg, run))}
     if cfg.mode == "train":
         nodes[topics.absolute(ns, "trainer")] = {
             "team_ns": ns, "env": cfg.env, "seed": cfg.seed, "run_dir": str(run / "trainer"),
@@ -489,7 +527,7 @@ LIFECYCLE_RETRY_S = 5.0
 # refused (its logs, events and CSV would be read and appended to as this run's). Other files
 # (a wrapper's own log, like scripts/soak.py's) do not make it one.
 RUN_FILES = ("launch.yaml", PARAMS_FILE, "logs", "status", "episodes.csv", "recording.mcap",
-             "trainer")
+             "recording", "trainer")
 
 
 def _die_with_parent() -> None:
@@ -820,8 +858,9 @@ class Launcher:
             self.say(f"restarts: {restarts}")
         self.say(f"{len(self.episodes)} episodes; "
                  + (f"failed: {', '.join(bad)}" if bad else "every child stopped cleanly"))
-        if (self.run_dir / "recording.mcap").exists():
-            self.say(f"recording: {self.run_dir / 'recording.mcap'}")
+        recording = recording_path(self.cfg, self.run_dir)
+        if recording.exists():
+            self.say(f"recording: {recording}")
         return 1 if bad else 0
 
 

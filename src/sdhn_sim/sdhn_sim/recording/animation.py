@@ -25,8 +25,10 @@ from sdhn_sim.envs.render import render_grid, robot_colors
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.recording.reader import (
     Recording,
+    dropped_note,
     episode_map,
     episode_states,
+    on_map,
     summaries_from_messages,
 )
 from sdhn_sim.ros import topics
@@ -80,6 +82,8 @@ def episode_animation(rec: Recording, episode: int, *, cell_px: int = 10, trail:
 
     st = episode_states(rec, episode)
     obstacles, goals, note = episode_map(st.env_name, st.instance_id, st.positions)
+    st = on_map(st, obstacles)
+    note += dropped_note(st)
     graphs = _hypergraphs(rec) if hypergraph else []
     if hypergraph and not graphs:
         raise NoHypergraphError(f"{rec.path} has no hypergraph messages (the trainer publishes "

@@ -385,20 +385,48 @@ class EpisodeStates:
     steps: list[int]
     positions: npt.NDArray[np.int64]  # [T, N, 2] grid cells (x, y)
     log_times: list[int]  # ns, when the recorder received each state
+    dropped: int = 0  # recorded states left out: positions not [N, 2] cells on the map
+
+
+MAX_BLANK_GRID = 256
+"""Largest grid side drawn for an episode whose map is unknown (cells); MAIF's largest is 60."""
 
 
 def episode_states(rec: Recording, episode: int) -> EpisodeStates:
-    """The TeamStates of ``episode`` (KeyError if none was recorded)."""
+    """The TeamStates of ``episode`` whose positions are [N, 2] cells in [0, MAX_BLANK_GRID)
+    with the first state's N (others are counted in ``dropped``, as --add-viz drops them);
+    KeyError if none was recorded or none is usable."""
     recorded = rec.decoded(f"/{topics.STATE}", "sdhn_msgs/msg/TeamState")
     states = sorted(((int(s.step), raw.log_time_ns, s) for raw, s in recorded
                      if int(s.episode) == episode), key=lambda x: x[0])
-    if not states:
+    kept: list[tuple[int, int, Any, npt.NDArray[np.int64]]] = []
+    for step, log_time, s in states:
+        flat = np.frombuffer(s.positions, dtype=np.int32).astype(np.int64)
+        if flat.size == 0 or flat.size % 2 or (kept and flat.size != kept[0][3].size) or (
+                flat.min() < 0 or flat.max() >= MAX_BLANK_GRID):
+            continue
+        kept.append((step, log_time, s, flat.reshape(-1, 2)))
+    if not kept:
         raise KeyError(episode)
-    positions = np.stack([np.frombuffer(s.positions, dtype=np.int32).astype(np.int64).reshape(-1, 2)
-                          for _, _, s in states])  # [T, N, 2]
-    first = states[0][2]
-    return EpisodeStates(str(first.env_name), int(first.instance_id), [t for t, _, _ in states],
-                         positions, [lt for _, lt, _ in states])
+    first = kept[0][2]
+    return EpisodeStates(str(first.env_name), int(first.instance_id), [t for t, _, _, _ in kept],
+                         np.stack([p for _, _, _, p in kept]), [lt for _, lt, _, _ in kept],
+                         dropped=len(states) - len(kept))
+
+
+def on_map(st: EpisodeStates, obstacles: npt.NDArray[np.bool_]) -> EpisodeStates:
+    """``st`` without the states that put a robot outside ``obstacles`` (counted in
+    ``dropped``); KeyError if none is left."""
+    rows, cols = obstacles.shape
+    inside = ((st.positions[..., 0] < cols) & (st.positions[..., 1] < rows)).all(axis=1)
+    if not inside.any():
+        raise KeyError("no recorded state is on the map")
+    if inside.all():
+        return st
+    keep = np.flatnonzero(inside)
+    return EpisodeStates(st.env_name, st.instance_id, [st.steps[i] for i in keep],
+                         st.positions[keep], [st.log_times[i] for i in keep],
+                         dropped=st.dropped + int((~inside).sum()))
 
 
 def episode_map(env_name: str, k: int, positions: npt.NDArray[np.int64]
@@ -423,5 +451,11 @@ def episode_frames(rec: Recording, episode: int, cell_px: int = 16) -> EpisodeFr
 
     st = episode_states(rec, episode)
     obstacles, goals, note = episode_map(st.env_name, st.instance_id, st.positions)
+    st = on_map(st, obstacles)
     images = [render_grid(obstacles, p, goals, cell_px) for p in st.positions]
-    return EpisodeFrames(episode, st.steps, images, note)
+    return EpisodeFrames(episode, st.steps, images, note + dropped_note(st))
+
+
+def dropped_note(st: EpisodeStates) -> str:
+    return (f"; {st.dropped} recorded states left out (positions off the map or malformed)"
+            if st.dropped else "")

@@ -250,6 +250,15 @@ def export_animation(rec: Recording, args: argparse.Namespace) -> int:
         write_mp4,
     )
 
+    targets = [(flag, path, write) for flag, path, write in (
+        ("--gif", args.gif, write_gif), ("--mp4", args.mp4, write_mp4)) if path is not None]
+    for flag, path, _ in targets:  # before rendering: the error names its own flag, not --out
+        problem = ("is a directory" if path.is_dir() else
+                   "is not in an existing directory" if not path.parent.is_dir() else None)
+        if problem:
+            print(f"replay: error: {flag}: {path} {problem}; allowed: a file path in an existing "
+                  "directory", file=sys.stderr)
+            return 2
     try:
         anim = episode_animation(rec, args.export_episode, cell_px=args.cell_px or 10,
                                  trail=args.trail, hypergraph=args.hypergraph, every=args.every)
@@ -262,11 +271,15 @@ def export_animation(rec: Recording, args: argparse.Namespace) -> int:
         return 1
     h, w = anim.frames[0].shape[:2]
     graphs = f", hypergraph on {anim.hypergraph_frames}" if args.hypergraph else ""
-    for path, write in ((args.gif, write_gif), (args.mp4, write_mp4)):
-        if path is not None:
+    for flag, path, write in targets:
+        try:
             write(anim, path, args.fps)
-            print(f"wrote {path}: episode {anim.episode}, {len(anim.frames)} frames "
-                  f"({w}x{h}, {args.fps:g} fps{graphs}), {anim.outcome}; {anim.map_note}")
+        except OSError as e:  # a full disk, no permission
+            print(f"replay: error: {flag}: cannot write {path}: {e.strerror or e}",
+                  file=sys.stderr)
+            return 2
+        print(f"wrote {path}: episode {anim.episode}, {len(anim.frames)} frames "
+              f"({w}x{h}, {args.fps:g} fps{graphs}), {anim.outcome}; {anim.map_note}")
     return 0
 
 
@@ -387,6 +400,10 @@ def say(line: str) -> None:
         sys.stdout.flush()
 
 
+def _warn(line: str) -> None:
+    print(f"replay: warning: {line}", file=sys.stderr)
+
+
 def _interrupt(signum: int, frame: object) -> None:
     """SIGTERM (a service manager, ``kill``): stop as Ctrl-C does, with the closing line."""
     raise KeyboardInterrupt
@@ -420,7 +437,7 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
     try:
         for m in messages:
             if m.topic not in pubs and m.topic not in skipped:
-                profile = recorded_profile(rec.channels.get(m.channel_id)) or (
+                profile = recorded_profile(rec.channels.get(m.channel_id), _warn) or (
                     LATCHED if topics.team_of(m.topic, topics.WEIGHTS) else
                     SENSOR if topics.team_of(m.topic, topics.HYPERGRAPH) else STEP)
                 try:

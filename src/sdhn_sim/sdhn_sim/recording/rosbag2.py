@@ -15,7 +15,7 @@ back, and ``replay_profile`` turns a topic's offers into the one profile to repu
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,6 +48,10 @@ INFINITE_NS = 9223372036854775807
 # The depth used to republish a topic whose publishers did not say theirs (DDS discovery does not
 # carry history): rosbag2's default, and ours for a reliable topic with flow control.
 UNKNOWN_DEPTH_REPLAY = 10
+# A recorded depth above this is not a real publisher's (rclpy refused 10**12 with a TypeError;
+# a depth in the millions would make the replay's writer reserve that history).
+MAX_DEPTH = 100_000
+MAX_OFFERS = 1_000  # publishers of one topic in one recording
 
 _POLICIES: dict[str, Any] = {
     "history": HistoryPolicy,
@@ -123,20 +127,32 @@ def type_hash_text(type_hash: Any) -> str:
 def _policy(kind: str, value: Any) -> Any:
     enum = _POLICIES[kind]
     if isinstance(value, int) and not isinstance(value, bool):  # versions <= 8: numbers
-        return enum(value)
+        try:
+            return enum(value)
+        except ValueError:  # e.g. reliability: 99
+            numbers = ", ".join(str(m.value) for m in enum)
+            raise QosFormatError(f"{kind}: {value!r}; allowed: {numbers} or a name") from None
     try:
         return enum[str(value).upper()]
     except KeyError:
         names = ", ".join(m.name.lower() for m in enum)
-        raise QosFormatError(f"{kind}: {value!r}; allowed: {names}") from None
+        raise QosFormatError(f"{kind}: {_short(value)}; allowed: {names}") from None
 
 
 def _parse_duration(kind: str, value: Any) -> Duration:
-    if not (isinstance(value, Mapping) and isinstance(value.get("sec"), int)
-            and isinstance(value.get("nsec"), int)):
-        raise QosFormatError(f"{kind}: {value!r}; allowed: {{sec: int, nsec: int}}")
+    """{sec, nsec} as rosbag2 writes them: integers >= 0 (more than INT64_MAX ns is infinite)."""
+    if not (isinstance(value, Mapping) and all(
+            isinstance(value.get(k), int) and not isinstance(value.get(k), bool)
+            and 0 <= value[k] <= INFINITE_NS for k in ("sec", "nsec"))):
+        raise QosFormatError(f"{kind}: {_short(value)}; allowed: {{sec: int >= 0, nsec: int >= "
+                             "0}")
     ns = value["sec"] * 1_000_000_000 + value["nsec"]
     return Duration(nanoseconds=min(ns, INFINITE_NS))
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:80] + "..."
 
 
 def parse_offered_qos(text: str) -> list[QoSProfile]:
@@ -149,24 +165,37 @@ def parse_offered_qos(text: str) -> list[QoSProfile]:
         return []
     if not isinstance(entries, list):
         raise QosFormatError(f"{QOS_KEY}: {type(entries).__name__}; allowed: a list")
+    if len(entries) > MAX_OFFERS:
+        raise QosFormatError(f"{QOS_KEY}: {len(entries)} entries; allowed: at most {MAX_OFFERS}")
     profiles = []
     for entry in entries:
         if not isinstance(entry, Mapping) or set(QOS_KEYS) - set(entry):
-            raise QosFormatError(f"{QOS_KEY}: entry {entry!r}; needs keys {', '.join(QOS_KEYS)}")
-        if not isinstance(entry["depth"], int) or entry["depth"] < 0:
-            raise QosFormatError(f"depth: {entry['depth']!r}; allowed: an integer >= 0")
-        profiles.append(QoSProfile(
-            history=_policy("history", entry["history"]),
-            depth=entry["depth"],
-            reliability=_policy("reliability", entry["reliability"]),
-            durability=_policy("durability", entry["durability"]),
-            deadline=_parse_duration("deadline", entry["deadline"]),
-            lifespan=_parse_duration("lifespan", entry["lifespan"]),
-            liveliness=_policy("liveliness", entry["liveliness"]),
-            liveliness_lease_duration=_parse_duration("liveliness_lease_duration",
-                                                      entry["liveliness_lease_duration"]),
-            avoid_ros_namespace_conventions=bool(entry["avoid_ros_namespace_conventions"]),
-        ))
+            raise QosFormatError(f"{QOS_KEY}: entry {_short(entry)}; needs keys "
+                                 f"{', '.join(QOS_KEYS)}")
+        depth = entry["depth"]
+        if not isinstance(depth, int) or isinstance(depth, bool) or not 0 <= depth <= MAX_DEPTH:
+            raise QosFormatError(f"depth: {_short(depth)}; allowed: an integer 0 .. {MAX_DEPTH}")
+        if not isinstance(entry["avoid_ros_namespace_conventions"], bool):
+            raise QosFormatError(f"avoid_ros_namespace_conventions: "
+                                 f"{_short(entry['avoid_ros_namespace_conventions'])}; allowed: "
+                                 "true, false")
+        try:  # whatever rclpy still refuses (a value pybind cannot convert): one line too
+            profiles.append(QoSProfile(
+                history=_policy("history", entry["history"]),
+                depth=entry["depth"],
+                reliability=_policy("reliability", entry["reliability"]),
+                durability=_policy("durability", entry["durability"]),
+                deadline=_parse_duration("deadline", entry["deadline"]),
+                lifespan=_parse_duration("lifespan", entry["lifespan"]),
+                liveliness=_policy("liveliness", entry["liveliness"]),
+                liveliness_lease_duration=_parse_duration("liveliness_lease_duration",
+                                                          entry["liveliness_lease_duration"]),
+                avoid_ros_namespace_conventions=entry["avoid_ros_namespace_conventions"],
+            ))
+        except QosFormatError:
+            raise
+        except (TypeError, ValueError, OverflowError) as e:
+            raise QosFormatError(f"{QOS_KEY}: entry {_short(entry)}: {_short(str(e))}") from None
     return profiles
 
 
@@ -192,15 +221,20 @@ def replay_profile(offers: Sequence[QoSProfile]) -> QoSProfile | None:
     )
 
 
-def recorded_profile(channel: Any) -> QoSProfile | None:
+def recorded_profile(channel: Any, warn: Callable[[str], None] | None = None
+                     ) -> QoSProfile | None:
     """The replay profile of an MCAP channel from its ``offered_qos_profiles`` metadata; None
-    when it has none (older recordings, other writers) or they cannot be read."""
+    when it has none (older recordings, other writers) or they cannot be read (then ``warn``
+    gets one line saying why: the caller falls back to the contract's profile)."""
     text = getattr(channel, "metadata", {}).get(QOS_KEY) if channel is not None else None
     if not text:
         return None
     try:
         return replay_profile(parse_offered_qos(text))
-    except QosFormatError:
+    except QosFormatError as e:
+        if warn is not None:
+            warn(f"{getattr(channel, 'topic', '?')}: recorded {QOS_KEY} unreadable ({e}); "
+                 "republished with the contract's profile")
         return None
 
 

@@ -18,7 +18,11 @@ from sdhn_train.sections import EnvConfig
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 PAGES = [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
-README_MAX_LINES = 300
+README_MAX_LINES = 250
+README_RESULTS_MAX_LINES = 15
+NOTEBOOK = DOCS / "notebook"
+REFERENCE = sorted(p for p in DOCS.rglob("*.md")  # the home page lists the notebook, as the nav
+                   if NOTEBOOK not in p.parents and p != DOCS / "index.md")
 # `scripts/X` or `configs/X` as a path of its own (not the tail of another path such as
 # `sdhn_sim/data/...`); placeholders (`<run dir>`) and globs end the match.
 REPO_PATH = re.compile(r"(?<![\w./-])((?:scripts|configs)/[\w./-]*)")
@@ -54,7 +58,8 @@ def _literal(cell: str) -> str:
 def test_readme_is_a_front_door_starting_with_the_two_commands() -> None:
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     lines = text.splitlines()
-    assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines (at most 300)"
+    assert len(lines) <= README_MAX_LINES, (
+        f"README.md has {len(lines)} lines (at most {README_MAX_LINES})")
     first_block = re.search(r"```bash\n(.*?)```", text, re.S)
     assert first_block is not None, "README.md has no bash block"
     commands = [line.split("#")[0].strip() for line in first_block.group(1).splitlines()]
@@ -63,6 +68,54 @@ def test_readme_is_a_front_door_starting_with_the_two_commands() -> None:
         f"README's first commands are {commands}, not the two scripts")
     assert text.index("```bash") < text.index("\n## "), "the two commands come before any section"
     assert not re.search(r"\bissue \d+", text, re.I), "README.md names an issue number"
+
+
+def _sections(text: str) -> dict[str, list[str]]:
+    """{heading: its lines} of a page's ``## `` sections (code blocks skipped)."""
+    out: dict[str, list[str]] = {}
+    current = None
+    fenced = False
+    for line in text.splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+        if not fenced and line.startswith("## "):
+            current = line[3:].strip()
+            out[current] = []
+        elif current is not None:
+            out[current].append(line)
+    return out
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-")
+
+
+def test_readme_has_a_table_of_contents_and_a_short_results_part() -> None:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    sections = _sections(text)
+    first = text.index("\n## ")
+    linked = set(re.findall(r"\]\(#([\w-]+)\)", text[:first]))
+    missing = [h for h in sections if _anchor(h) not in linked]
+    assert not missing, f"README's contents (before the first section) omit {missing}"
+    results = [ln for ln in sections.get("Results", []) if ln.strip()]
+    assert results, "README.md has no Results section"
+    assert len(results) <= README_RESULTS_MAX_LINES, (
+        f"README's Results part has {len(results)} lines (at most {README_RESULTS_MAX_LINES}): "
+        "the figures belong in docs/results.md")
+    assert "docs/results/claims.md" in "\n".join(results), "README's results do not link the claims"
+
+
+@pytest.mark.parametrize("page", REFERENCE, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_reference_pages_stand_without_the_notebook(page: Path) -> None:
+    """Dated entries (run status, what is left, scheduling) live in docs/notebook/; a reference
+    page neither links into it nor keeps a to-do or UTC-timed section of its own."""
+    text = page.read_text(encoding="utf-8")
+    links = [m for m in re.findall(r"\]\(([^)#]+)", text) if "notebook/" in m]
+    assert not links, f"{page.name} depends on the notebook: {links}"
+    headings = [ln for ln in text.splitlines() if ln.startswith("#")
+                and re.search(r"UTC|next session|left for|to ?do", ln, re.I)]
+    assert not headings, f"{page.name}: notebook headings in a reference page: {headings}"
 
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())

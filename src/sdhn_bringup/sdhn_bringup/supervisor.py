@@ -42,6 +42,15 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
                           drives each one configure -> activate through the standard
                           lifecycle_msgs services, again after a restart; a refused configure,
                           e.g. bad weights, fails the run like an actor's exit 2 does)
+    discovery: simple     (simple | server: a Fast DDS discovery server, started first as the
+                          child ``discovery`` on 127.0.0.1:discovery_port, 0 = a free port;
+                          every other child gets ROS_DISCOVERY_SERVER, the recorder also
+                          ROS_SUPER_CLIENT)
+    actor_hosts: 0        (0 = one actor process per robot, the default; K: K processes
+                          ``actor_host_<k>``, each running a block of the robots' actor nodes
+                          on one executor, sdhn_policy.actor_host; unmanaged only)
+    start_batch: 0        (0 = every child at once; K: sim, recorder, trainer first, then the
+                          actors K at a time, each batch once all started before are ready)
     trainer: {algo: sdhn, rollout_steps: 128, ...}   (mode train; passed through as the
                           trainer node's parameters, which the trainer itself checks: a bad one
                           ends the trainer with exit 2 and one line naming it in its log)
@@ -64,9 +73,12 @@ import contextlib
 import csv
 import ctypes
 import dataclasses
+import itertools
+import json
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -88,6 +100,7 @@ from sdhn_sim.yaml_io import YamlError, load_yaml
 
 MODES = ("deploy", "train")
 RESTART_POLICIES = ("never", "on-failure")
+DISCOVERY_MODES = ("simple", "server")
 
 
 class LaunchConfigError(ValueError):
@@ -136,6 +149,10 @@ class LaunchConfig:
     status_interval: float = 1.0  # seconds between status lines
     restart: RestartConfig = field(default_factory=RestartConfig)
     managed: bool = False  # actors wait for lifecycle transitions, driven by the launcher
+    discovery: str = "simple"  # simple (DDS peer-to-peer) | server (a Fast DDS discovery server)
+    discovery_port: int = 0  # server: its UDP port on 127.0.0.1 (0 = a free one)
+    start_batch: int = 0  # actors started per batch, each after the last is ready (0 = all)
+    actor_hosts: int = 0  # 0 = one actor process per robot; K = K processes hosting the robots
     trainer: TrainerSection = field(default_factory=dict)
     hosts: dict[str, str] = field(default_factory=dict)  # child name -> network namespace
 
@@ -249,6 +266,24 @@ def validate(cfg: LaunchConfig) -> None:
         topics.check_team_ns(cfg.team_ns)
     except topics.NamespaceError as e:
         raise LaunchConfigError(str(e)) from None
+    if cfg.discovery not in DISCOVERY_MODES:
+        raise LaunchConfigError(f"discovery: got {cfg.discovery!r}; allowed: "
+                                f"{', '.join(DISCOVERY_MODES)}")
+    if not 0 <= cfg.discovery_port <= 65535:
+        raise LaunchConfigError(f"discovery_port: got {cfg.discovery_port}; allowed: 0 (a free "
+                                "port) or a UDP port 1..65535")
+    if cfg.discovery == "server" and cfg.hosts:
+        raise LaunchConfigError("discovery: the discovery server listens on 127.0.0.1, not "
+                                "across hosts; allowed: simple when hosts is set")
+    if not 0 <= cfg.actor_hosts <= n:
+        raise LaunchConfigError(f"actor_hosts: got {cfg.actor_hosts}; allowed: 0 (one actor "
+                                f"process per robot) to {n} (processes hosting the robots)")
+    if cfg.actor_hosts and cfg.managed:
+        raise LaunchConfigError("managed: an actor host runs unmanaged actors only; allowed: "
+                                "false when actor_hosts > 0")
+    if cfg.start_batch < 0:
+        raise LaunchConfigError(f"start_batch: must be >= 0 (0 = every actor at once), got "
+                                f"{cfg.start_batch}")
     if cfg.managed and cfg.hosts:
         raise LaunchConfigError("managed: the launcher drives lifecycle services from its own "
                                 "network namespace, not across hosts; allowed: false when hosts "
@@ -277,6 +312,8 @@ def resolve(cfg: LaunchConfig) -> LaunchConfig:
         robots=team_size(cfg.env),
         weights=str(resolve_weights(cfg.weights).resolve()) if cfg.mode == "deploy" else "",
         run_dir=cfg.run_dir or f"runs/{cfg.mode}-{cfg.env}-{time.strftime('%Y%m%d-%H%M%S')}",
+        discovery_port=(cfg.discovery_port or free_udp_port()) if cfg.discovery == "server"
+        else cfg.discovery_port,
     )
 
 
@@ -291,6 +328,14 @@ def describe_actions(cfg: LaunchConfig) -> str:
         rule = cfg.stall_rule or "the actors' default"
         return f"greedy, with stall breaking (rule {rule})"
     return "greedy"
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that nothing holds now (the kernel's pick), for the discovery
+    server: runs side by side (tests, several users) never share one."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 def set_trainer(cfg: LaunchConfig, key: str, value: Any) -> None:
@@ -459,6 +504,9 @@ class ChildSpec:
     restart_args: list[str] = field(default_factory=list)  # appended when it is restarted
     netns: str = ""  # run inside this network namespace ("" = the launcher's own)
     managed: bool = False  # a lifecycle node the launcher drives to active
+    argv: list[str] = field(default_factory=list)  # a program that is no ROS node: its command
+    env: dict[str, str] = field(default_factory=dict)  # set for this child ("" = unset it)
+    ready_line: str = ""  # no node runner: ready once its log holds this text
 
     @property
     def node_name(self) -> str:
@@ -473,6 +521,8 @@ class ChildSpec:
         (~0.1 s more start-up per process). A restart adds ``restart_args`` (resume:=true)."""
         ros_args = [*self.ros_args, *(self.restart_args if restart else [])]
         host = ["ip", "netns", "exec", self.netns] if self.netns else []
+        if self.argv:
+            return [*host, *self.argv]
         script = Path(sys.executable).parent / self.executable
         if script.is_file() and _entry_package(script) == self.package:
             return [*host, str(script), "--ros-args", *ros_args]
@@ -492,9 +542,15 @@ def graph(cfg: LaunchConfig) -> list[ChildSpec]:
     ns, run = cfg.team_ns, Path(cfg.run_dir).resolve()  # ns checked by validate()
     params = ["--params-file", str(run / PARAMS_FILE)]
     children: list[ChildSpec] = []
+    if cfg.discovery == "server":
+        children.append(discovery_server(cfg.discovery_port))
     if cfg.recorder:
+        # The recorder finds its topics in the graph (get_topic_names_and_types): a plain client
+        # of a discovery server learns only the endpoints that match its own, a super client all.
         children.append(ChildSpec("recorder", "sdhn_sim", "recorder",
-                                  ["-r", f"__ns:={ns}", *params]))
+                                  ["-r", f"__ns:={ns}", *params],
+                                  env={SUPER_CLIENT_ENV: "TRUE"} if cfg.discovery == "server"
+                                  else {}))
     if cfg.mode == "train":
         # A restarted trainer continues from its last checkpoint (without resume it would refuse
         # the run_dir its first start filled, exit 2, and never come back).
@@ -504,13 +560,53 @@ def graph(cfg: LaunchConfig) -> list[ChildSpec]:
     # The simulator names its topics relative to its namespace, the team namespace.
     children.append(ChildSpec("sim", "sdhn_sim", "sim", ["-r", f"__ns:={ns}", *params],
                               essential=True))
-    for i in range(cfg.robots):
+    if cfg.actor_hosts:
+        children += actor_hosts(cfg.robots, cfg.actor_hosts, ns, params)
+    for i in range(0 if cfg.actor_hosts else cfg.robots):
         children.append(ChildSpec(f"actor_{i}", "sdhn_policy", "actor", [
             "-r", f"__ns:={topics.absolute(ns, topics.robot(i))}", *params],
             managed=cfg.managed))
     for child in children:
         child.netns = cfg.hosts.get(child.name, "")
     return children
+
+
+def actor_hosts(robots: int, hosts: int, ns: str, params: list[str]) -> list[ChildSpec]:
+    """``hosts`` actor host processes (sdhn_policy.actor_host), ``actor_host_<k>``, each
+    running a contiguous block of the robots (sizes differ by one at most)."""
+    bounds = [robots * k // hosts for k in range(hosts + 1)]
+    return [ChildSpec(f"actor_host_{k}", "sdhn_policy", "actor_host", params,
+                      argv=[sys.executable, "-m", "sdhn_policy.actor_host", "--team-ns", ns,
+                            "--robots", f"{a}:{b}", "--ros-args", *params])
+            for k, (a, b) in enumerate(itertools.pairwise(bounds))]
+
+
+DISCOVERY_CHILD = "discovery"
+DISCOVERY_SERVER_ENV = "ROS_DISCOVERY_SERVER"
+SUPER_CLIENT_ENV = "ROS_SUPER_CLIENT"
+DISCOVERY_READY_LINE = "Server is running"
+DISCOVERY_SERVER_PROGRAM = "fast-discovery-server"
+
+
+def discovery_env(cfg: LaunchConfig) -> dict[str, str]:
+    """What every ROS process of a run needs in its environment for ``cfg.discovery``: with the
+    server, ``ROS_DISCOVERY_SERVER`` (Fast DDS 2.14 reads it and turns each participant that
+    would use simple discovery into a client of that server, ignoring
+    ``ROS_AUTOMATIC_DISCOVERY_RANGE``); with simple discovery, neither variable from the caller
+    (a stray one would make a run silently wait for a server that is not there)."""
+    if cfg.discovery == "server":
+        return {DISCOVERY_SERVER_ENV: f"127.0.0.1:{cfg.discovery_port}", SUPER_CLIENT_ENV: ""}
+    return {DISCOVERY_SERVER_ENV: "", SUPER_CLIENT_ENV: ""}
+
+
+def discovery_server(port: int) -> ChildSpec:
+    """The Fast DDS discovery server (the ``fast-discovery-server`` tool of the Fast DDS wheel,
+    next to this interpreter), server id 0 on 127.0.0.1:``port``; ready when it says so."""
+    program = Path(sys.executable).parent / DISCOVERY_SERVER_PROGRAM
+    return ChildSpec(DISCOVERY_CHILD, "fastrtps", DISCOVERY_SERVER_PROGRAM, [],
+                     argv=[str(program), "-i", "0", "-l", "127.0.0.1", "-p", str(port)],
+                     env={DISCOVERY_SERVER_ENV: "", SUPER_CLIENT_ENV: ""},
+                     ready_line=DISCOVERY_READY_LINE)
 
 
 def status_dir(run_dir: Path) -> Path:
@@ -530,6 +626,38 @@ RUN_FILES = ("launch.yaml", PARAMS_FILE, "logs", "status", "episodes.csv", "reco
              "recording", "trainer")
 
 
+def start_stages(children: list[Child], batch: int) -> list[list[Child]]:
+    """The order children start in, as stages; each stage starts once every child of the
+    earlier ones is ready. The discovery server alone first (a client that starts before its
+    server retries, but every retry is start-up time lost); then everything else, or with
+    ``batch`` > 0 the other children first and the actors ``batch`` at a time (on a small
+    machine a hundred interpreters importing at once take longer than in waves)."""
+    first = [c for c in children if c.spec.name == DISCOVERY_CHILD]
+    actors = [c for c in children if c.spec.executable in ("actor", "actor_host")
+              and c not in first]
+    rest = [c for c in children if c not in first and c not in actors]
+    if batch <= 0:
+        stages = [first, rest + actors]
+    else:
+        stages = [first, rest, *(actors[k:k + batch] for k in range(0, len(actors), batch))]
+    return [stage for stage in stages if stage]
+
+
+STOP_WAVE = 4
+"""Processes stopped together: each one's Fast DDS participant, while it is being deleted,
+processes the departures of the others leaving with it, and with dozens leaving at once that
+races (measured with 40 actors stopped together, on 2 busy cores: 2-3 of 40 ended by SIGSEGV,
+SIGABRT on a corrupted heap, or hung in ``destroy_publisher`` until killed; Fast DDS 2.14,
+eProsima/Fast-DDS #6502, #6193). Stopped 4 at a time, each wave once the last has exited."""
+
+
+def stop_waves(children: list[Child]) -> list[list[Child]]:
+    """The simulator (and trainer) first, then the actors in waves of STOP_WAVE."""
+    actors = [c for c in children if c.spec.executable in ("actor", "actor_host")]
+    rest = [c for c in children if c not in actors]
+    return [rest, *(actors[k:k + STOP_WAVE] for k in range(0, len(actors), STOP_WAVE))]
+
+
 def _die_with_parent() -> None:
     """In the child, before exec: own process group (terminal Ctrl-C reaches only the launcher,
     which then stops the children in order), and SIGTERM if the launcher dies."""
@@ -544,7 +672,8 @@ class Child:
         self.spec = spec
         self.log_path = log_dir / f"{spec.name}.log"
         self.ready_path = ready_dir / f"{spec.name}.ready"
-        self.env = {**env, READY_ENV: str(self.ready_path)}
+        self.env = {k: v for k, v in {**env, **spec.env, READY_ENV: str(self.ready_path)}.items()
+                    if v}
         self.restarts = 0
         self.proc: subprocess.Popen[bytes] | None = None
         self.log: IO[bytes] | None = None
@@ -565,8 +694,20 @@ class Child:
 
     @property
     def ready(self) -> bool:
-        """Built and spinning: its ready file exists and it has not exited."""
-        return self.exit_code is None and self.ready_path.exists()
+        """Built and spinning: its ready file exists and it has not exited. A child with a
+        ``ready_line`` (no node runner to write the file) gets the file from the launcher once
+        its log holds the line."""
+        if self.exit_code is not None:
+            return False
+        if self.ready_path.exists():
+            return True
+        if self.spec.ready_line and self.proc is not None:
+            with contextlib.suppress(OSError):
+                if self.spec.ready_line in self.log_path.read_text(errors="replace"):
+                    self.ready_path.write_text(json.dumps({"node": self.spec.name,
+                                                           "pid": self.proc.pid}) + "\n")
+                    return True
+        return False
 
     def poll(self) -> int | None:
         if self.proc is None or self.exit_code is not None:
@@ -628,10 +769,13 @@ class Launcher:
             env["FASTDDS_BUILTIN_TRANSPORTS"] = "UDPv4"
             if env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "") in ("", "LOCALHOST"):
                 env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
+        env.update(discovery_env(cfg))
         ready_dir = status_dir(self.run_dir)
         ready_dir.mkdir(parents=True, exist_ok=True)
         self.events = EventReader(ready_dir / SIM_EVENTS)
         self.children = [Child(spec, self.log_dir, ready_dir, env) for spec in graph(cfg)]
+        self.stages = start_stages(self.children, cfg.start_batch)
+        self.stage_started = 0.0  # monotonic time the last stage was started
         self.stop_requested = False
         self.failed: list[str] = []
         self.t0 = time.monotonic()
@@ -644,6 +788,11 @@ class Launcher:
         self.lifecycle: Any = None  # sdhn_sim.ros.lifecycle_client.LifecycleClient when managed
         if any(c.spec.managed for c in self.children):
             os.environ.setdefault("ROS_LOG_DIR", env["ROS_LOG_DIR"])
+            for key, value in discovery_env(cfg).items():  # the launcher's own participant
+                if value:
+                    os.environ[key] = value
+                else:
+                    os.environ.pop(key, None)
             from sdhn_sim.ros.lifecycle_client import LifecycleClient  # rclpy only when needed
 
             self.lifecycle = LifecycleClient("launcher")
@@ -656,9 +805,12 @@ class Launcher:
 
     def status(self) -> str:
         ready = sum(c.ready for c in self.children)
+        started = sum(c.proc is not None for c in self.children)
         last = self.episodes[-1] if self.episodes else None
         ep, step = self.position
-        parts = [f"{ready}/{len(self.children)} ready", f"episode {ep} step {step}",
+        parts = [f"{ready}/{len(self.children)} ready"
+                 + (f" ({started} started)" if started < len(self.children) else ""),
+                 f"episode {ep} step {step}",
                  f"{self.step_rate:.0f} steps/s", f"{len(self.episodes)} episodes done"]
         if last:
             outcome = "completed" if last["completed"] else "not completed"
@@ -728,15 +880,12 @@ class Launcher:
         self.say(f"run dir {self.run_dir}; mode {self.cfg.mode}, env {self.cfg.env}, "
                  f"{self.cfg.robots} actor processes (actions {describe_actions(self.cfg)}), "
                  f"recorder {rec}")
-        for child in self.children:
-            child.start()
-        self.say(f"started {len(self.children)} processes; logs in {self.log_dir}")
-        self.say("pids: " + " ".join(f"{c.spec.name}={c.proc.pid}" for c in self.children
-                                      if c.proc is not None))
+        self.start_next_stage()
         next_status = time.monotonic() + self.cfg.status_interval
         finished = False
         all_ready_said = False
         while not self.stop_requested and not finished:
+            finished = self.advance_stages()
             if self.lifecycle is not None:
                 self.lifecycle.spin(0.1)
                 finished = self.drive_managed()
@@ -758,6 +907,34 @@ class Launcher:
         if self.stop_requested:
             self.say("stop requested: stopping every child")
         return self.stop_all()
+
+    def start_next_stage(self) -> None:
+        stage = self.stages.pop(0)
+        for child in stage:
+            child.start()
+        self.stage_started = time.monotonic()
+        total = sum(c.proc is not None for c in self.children)
+        self.say(f"started {len(stage)} processes ({total}/{len(self.children)}); logs in "
+                 f"{self.log_dir}")
+        self.say("pids: " + " ".join(f"{c.spec.name}={c.proc.pid}" for c in stage
+                                      if c.proc is not None))
+
+    def advance_stages(self) -> bool:
+        """Start the next stage once every child started so far is ready; True (the run ends,
+        failed) when a stage is not ready within ``start_timeout``."""
+        if not self.stages:
+            return False
+        waiting = [c for c in self.children if c.proc is not None and not c.ready]
+        if not waiting:
+            self.start_next_stage()
+        elif time.monotonic() - self.stage_started > self.cfg.start_timeout:
+            names = ", ".join(c.spec.name for c in waiting[:5]) + (", ..." if len(waiting) > 5
+                                                                   else "")
+            self.say(f"start_timeout: {len(waiting)} processes not ready after "
+                     f"{self.cfg.start_timeout:g}s ({names}); not starting the rest")
+            self.failed += [c.spec.name for c in waiting]
+            return True
+        return False
 
     def check_children(self) -> bool:
         """Report and restart exited children; True when the run is over."""
@@ -828,10 +1005,11 @@ class Launcher:
         return False
 
     def stop_all(self) -> int:
-        # Observers (recorder) stop last so they see everything the others published.
-        order = sorted(self.children, key=lambda c: c.spec.name == "recorder")
-        for group in ([c for c in order if c.spec.name != "recorder"],
-                      [c for c in order if c.spec.name == "recorder"]):
+        # Observers (recorder) stop last so they see everything the others published; the
+        # discovery server after them (nobody needs it to leave).
+        last = ("recorder", DISCOVERY_CHILD)
+        for group in (*stop_waves([c for c in self.children if c.spec.name not in last]),
+                      *([c for c in self.children if c.spec.name == name] for name in last)):
             for child in group:
                 child.signal(signal.SIGINT)
             deadline = time.monotonic() + self.cfg.stop_timeout
@@ -849,7 +1027,7 @@ class Launcher:
         if self.lifecycle is not None:
             self.lifecycle.close()
             self.lifecycle = None
-        codes = {c.spec.name: c.exit_code for c in self.children}
+        codes = {c.spec.name: c.exit_code for c in self.children if c.proc is not None}
         bad = sorted(set(self.failed) | {n for n, c in codes.items() if c != 0})
         summary = ", ".join(f"{n}={describe_exit(c)}" for n, c in codes.items())
         self.say(f"exit codes: {summary}")

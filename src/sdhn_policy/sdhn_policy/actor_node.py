@@ -101,11 +101,13 @@ SHUTDOWN_GRACE_S = 0.2  # after the shutdown transition, time for its service re
 
 
 class ActorNode(LifecycleNode):
-    def __init__(self, context: Context) -> None:
+    def __init__(self, context: Context, namespace: str | None = None) -> None:
         # LifecycleNode's own __init__ in two halves: the lifecycle interface (services, the
         # transition_event topic) only once the parameters, and without ``managed`` the weights,
         # are known good, so a configuration error leaves no topic behind (exit 2, one line).
-        Node.__init__(self, "actor", context=context)
+        # ``namespace``: the robot's, when several actors share a process (sdhn_policy.actor_host);
+        # None = the process's own (``-r __ns:=``).
+        Node.__init__(self, "actor", context=context, namespace=namespace)
         p = declare(self, PARAMETERS)
         robot_id, num_robots = p["robot_id"], p["num_robots"]
         self.ns = topics.check_team_ns(p["team_ns"])
@@ -359,10 +361,10 @@ def _on_stop(node: Node) -> None:
         node.get_logger().info(f"drops: {dict(node.drops)}")
 
 
-def make_actor(context: Context, _args: list[str]) -> ActorNode:
+def make_actor(context: Context, _args: list[str], namespace: str | None = None) -> ActorNode:
     """The node; unless ``managed``, configured and activated at once (bad weights: ConfigError
     while it is built, exit 2)."""
-    node = ActorNode(context)
+    node = ActorNode(context, namespace)
     # unmanaged: the weights were checked when the node was built
     if not node.params["managed"] and (node.trigger_configure() != SUCCESS
                                        or node.trigger_activate() != SUCCESS):

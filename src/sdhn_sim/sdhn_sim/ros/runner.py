@@ -49,14 +49,15 @@ TEARDOWN_S = 5.0
 
 
 def run_node(
-    make_node: Callable[[Context, list[str]], Node],
+    make_node: Callable[[Context, list[str]], Node | Sequence[Node]],
     argv: Sequence[str] | None = None,
     on_stop: Callable[[Node], None] | None = None,
 ) -> int:
-    """Run one node until SIGINT/SIGTERM or ``context.shutdown()``; returns the exit code.
+    """Run one node (or several, on one executor: ``make_node`` may return a sequence, as the
+    actor host does) until SIGINT/SIGTERM or ``context.shutdown()``; returns the exit code.
 
     ``make_node`` receives the context and the command-line arguments with ROS arguments removed.
-    ``on_stop`` runs before the node is destroyed (flush files, stop worker threads).
+    ``on_stop`` runs before each node is destroyed (flush files, stop worker threads).
     It is a process's main: after it returns the process has ``TEARDOWN_S`` seconds to exit.
     """
     args = list(sys.argv if argv is None else argv)
@@ -67,40 +68,47 @@ def run_node(
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
-    node: Node | None = None
+    nodes: list[Node] = []
     try:
         try:
-            node = make_node(context, rclpy.utilities.remove_ros_args(args)[1:])
+            made = make_node(context, rclpy.utilities.remove_ros_args(args)[1:])
         except (ConfigError, topics.NamespaceError) as error:
             print(f"{prog}: error: {error}", file=sys.stderr)
             return 2
+        nodes = [made] if isinstance(made, Node) else list(made)
+        node = nodes[0]
         # Everything built so far (imports: rclpy, NumPy, torch in the trainer) lives as long as
         # the process: keep it out of the garbage collector's full passes, which otherwise walk
         # it all and stall the callbacks (hundreds of ms with torch imported, on a busy machine).
         gc.collect()
         gc.freeze()
         executor = EventsExecutor(context=context)
-        executor.add_node(node)
+        for each in nodes:
+            executor.add_node(each)
         write_ready(node.get_name(), node.get_namespace())
+
+        def failed() -> str:
+            return next((r for r in (getattr(n, FAILED, "") for n in nodes) if r), "")
+
         try:
-            while context.ok() and not stop.is_set() and not getattr(node, FAILED, ""):
+            while context.ok() and not stop.is_set() and not failed():
                 executor.spin_once(timeout_sec=SPIN_SLICE_S)
         finally:
             executor.shutdown(timeout_sec=1.0)
-        reason = getattr(node, FAILED, "")
+        reason = failed()
         if reason:
             print(f"{prog}: error: {reason}", file=sys.stderr)
             return 1
         return 0
     finally:
-        if node is not None:
+        for each in nodes:
             if on_stop is not None:
-                on_stop(node)
-            node.get_logger().info("stopped")
+                on_stop(each)
+            each.get_logger().info("stopped")
         # Not cancelled: it also bounds the interpreter's exit, where rclpy's objects are freed.
         faulthandler.dump_traceback_later(TEARDOWN_S, exit=True)
-        if node is not None:
-            node.destroy_node()
+        for each in nodes:
+            each.destroy_node()
         rclpy.try_shutdown(context=context)
         # Finalise the rmw context now (it deletes the DDS participant once the executor and
         # node let go, at the latest when this frame returns). Left to the process's exit, Fast

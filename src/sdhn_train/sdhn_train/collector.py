@@ -14,7 +14,8 @@ import torch
 
 from sdhn_policy.actor_torch import Actor
 from sdhn_sim.envs.api import BatchedEnv, EpisodeStats
-from sdhn_train.learners.base import sample_categorical
+from sdhn_train.device import to_device
+from sdhn_train.learners.base import actor_device, sample_categorical
 from sdhn_train.rollout import Rollout
 
 
@@ -63,15 +64,16 @@ class RolloutCollector:
         trunc = np.empty((t_len, b), bool)
         actor_h0 = self.actor_h.copy()
         episodes: list[EpisodeStats] = []
-        h = torch.from_numpy(self.actor_h).reshape(b * n, -1)
+        dev = actor_device(self.actor)
+        h = to_device(self.actor_h, dev).reshape(b * n, -1)
         for t in range(t_len):
             t0 = time.perf_counter()
             obs[t], state[t] = self.obs, self.state
-            x = self.actor.with_robot_id(torch.from_numpy(self.obs)).reshape(b * n, -1)
+            x = self.actor.with_robot_id(to_device(self.obs, dev)).reshape(b * n, -1)
             logits, h = self.actor.step(x, h)
             a, logp = self.sample(logits)
-            actions[t] = a.reshape(b, n).numpy()
-            logps[t] = logp.reshape(b, n).numpy()
+            actions[t] = a.reshape(b, n).cpu().numpy()
+            logps[t] = logp.reshape(b, n).cpu().numpy()
             t1 = time.perf_counter()
             res = env.step(actions[t])
             t2 = time.perf_counter()
@@ -83,10 +85,10 @@ class RolloutCollector:
             done = res.terminated | res.truncated
             if done.any():
                 h = h.reshape(b, n, -1)
-                h[torch.from_numpy(done)] = 0.0
+                h[to_device(done, dev)] = 0.0
                 h = h.reshape(b * n, -1)
             episodes.extend(res.episodes)
-        self.actor_h = h.reshape(b, n, -1).numpy().copy()
+        self.actor_h = h.reshape(b, n, -1).cpu().numpy().copy()
         rollout = Rollout(obs, state, actions, logps, rewards, term, trunc, final_obs, final_state,
                           actor_h0, critic_h0)
         return rollout, episodes
@@ -98,17 +100,18 @@ def evaluate_greedy(env: BatchedEnv, actor: Actor, seed: int) -> list[EpisodeSta
     instances for a fixed seed). Returns the first finished episode of every environment."""
     obs, _ = env.reset(seed=seed)
     b, n = env.num_envs, env.num_robots
-    h = torch.zeros(b * n, actor.spec.gru_hidden)
+    dev = actor_device(actor)
+    h = torch.zeros(b * n, actor.spec.gru_hidden, device=dev)
     first: dict[int, EpisodeStats] = {}
     for _ in range(env.max_steps):
-        x = actor.with_robot_id(torch.from_numpy(obs)).reshape(b * n, -1)
+        x = actor.with_robot_id(to_device(obs, dev)).reshape(b * n, -1)
         logits, h = actor.step(x, h)
-        res = env.step(logits.argmax(-1).reshape(b, n).numpy())
+        res = env.step(logits.argmax(-1).reshape(b, n).cpu().numpy())
         for ep in res.episodes:
             first.setdefault(ep.env_index, ep)
         if len(first) == b:
             break
-        done = torch.from_numpy(res.terminated | res.truncated)
+        done = to_device(res.terminated | res.truncated, dev)
         h = h.reshape(b, n, -1)
         h[done] = 0.0
         h = h.reshape(b * n, -1)

@@ -24,6 +24,7 @@ from sdhn_sim import overrides, yaml_io
 from sdhn_sim.envs.maif import MAIF_REWARDS
 from sdhn_sim.envs.registry import TRAINING_SETS, env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS, get_algorithm
+from sdhn_train.device import DEVICES, PPO_ONLY, cuda_available, resolve_device
 from sdhn_train.learners.ppo import PPOConfig
 from sdhn_train.sections import (
     ActorConfig,
@@ -151,6 +152,15 @@ def validate(cfg: Config, resuming: bool = False) -> None:
          cfg.actor.gru_hidden)
     for path, v in {"train.seed": cfg.train.seed, "eval.seed": cfg.eval.seed}.items():
         need(0 <= v < 2**32, path, "an integer in 0..2**32-1", v)
+    need(cfg.train.device in DEVICES, "train.device", ", ".join(DEVICES), cfg.train.device)
+    need(cfg.train.device != "cuda" or cuda_available(), "train.device",
+         "cpu or auto (torch sees no CUDA GPU here)", cfg.train.device)
+    on_cpu = resolve_device(cfg.train.device).type == "cpu"
+    need(on_cpu or get_algorithm(cfg.algo.name).data_parallel, "train.device",
+         f"cpu for {cfg.algo.name} (another device is for {PPO_ONLY})", cfg.train.device)
+    need(on_cpu or cfg.train.learner_processes == 1, "train.device",
+         "cpu when train.learner_processes > 1 (the ranks average gradients on the CPU)",
+         cfg.train.device)
     cfg.ppo.validate()
     for section in cfg.algorithms.values():
         section.validate()

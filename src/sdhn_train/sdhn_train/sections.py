@@ -80,6 +80,10 @@ class TrainConfig:
     seed: int = opt(1, "seed of everything (torch, numpy, environments)")
     deterministic: bool = opt(False, "torch deterministic algorithms")
     threads: int = opt(1, "torch intra-op threads")
+    device: str = opt("cpu", "where the networks learn and the collector's actor runs: cpu, "
+                             "cuda (refused when torch sees no GPU) or auto (cuda if torch sees "
+                             "one, else cpu); checkpoints and exported actors are the same "
+                             "files either way. PPO algorithms (sdhn, mappo, dicg) only")
     learner_processes: int = opt(
         1, "K data-parallel ranks (PPO learners): each collects on B/K envs and "
            "computes its share of every minibatch, gradients averaged before each step; rank 0 "

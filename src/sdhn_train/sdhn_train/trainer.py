@@ -28,6 +28,7 @@ from sdhn_train.algorithms.registry import get_algorithm
 from sdhn_train.collector import RolloutCollector
 from sdhn_train.config import Config
 from sdhn_train.data_parallel import Command, Group
+from sdhn_train.device import resolve_device
 from sdhn_train.env_features import make_training_env, unwrap
 from sdhn_train.envinfo import EnvInfo
 from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs
@@ -94,6 +95,10 @@ class Trainer:
             cfg, EnvInfo.of(self.env), learner_rng)
         if cfg.actor.init_from and warm_start:  # warm start from an exported actor
             load_actor_into(self.learner.actor, cfg.actor.init_from, cfg.actor.init_temperature)
+        self.device = resolve_device(cfg.train.device)
+        if self.device.type != "cpu":  # validated: a PPO learner, one rank
+            assert isinstance(self.learner, PPOLearner)
+            self.learner.to(self.device)
         if group is not None:
             if not isinstance(self.learner, PPOLearner):
                 raise ConfigError("train.learner_processes > 1 needs a PPO learner (sdhn, "

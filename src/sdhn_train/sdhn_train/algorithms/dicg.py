@@ -75,7 +75,7 @@ class DICGCritic(Critic):
         # Attention entropy per row (log N = uniform graph, 0 = one neighbour): a graph summary.
         entropy = -(adj * adj.clamp_min(1e-12).log()).sum(-1).mean()
         metrics = {"graph/attention_entropy": entropy.detach()}
-        return CriticOutput(values, hiddens, torch.zeros((), dtype=values.dtype), metrics)
+        return CriticOutput(values, hiddens, values.new_zeros(()), metrics)
 
     def value_step(self, obs: Tensor, state: Tensor, h: Tensor) -> Tensor:
         return self._values(obs, state)[0]

@@ -103,9 +103,15 @@ def sample_categorical(logits: Tensor) -> tuple[Tensor, Tensor]:
 @torch.no_grad()
 def actor_hidden_after(actor: Actor, obs: F32) -> F32:
     """The actor's GRU state [N, H] after an episode prefix obs [P, N, D] (zeros if P = 0)."""
-    h = torch.zeros(obs.shape[1], actor.spec.gru_hidden)
+    dev = actor_device(actor)
+    h = torch.zeros(obs.shape[1], actor.spec.gru_hidden, device=dev)
     if obs.shape[0]:
-        x = actor.with_robot_id(torch.from_numpy(obs))
+        x = actor.with_robot_id(torch.from_numpy(obs).to(dev))
         for t in range(obs.shape[0]):
             _, h = actor.step(x[t], h)
-    return h.numpy().copy()
+    return h.cpu().numpy().copy()
+
+
+def actor_device(actor: Actor) -> torch.device:
+    """Where the actor's parameters are (train.device)."""
+    return next(actor.parameters()).device

@@ -24,6 +24,7 @@ from sdhn_policy.actor_torch import Actor
 from sdhn_policy.weights import ActorWeights
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.data_parallel import Group
+from sdhn_train.device import to_device, to_numpy
 from sdhn_train.fused_gru import use_fused_gru
 from sdhn_train.learners.base import (
     F32,
@@ -174,6 +175,16 @@ class PPOLearner:
         # train.learner_processes > 1: this replica's group; gradients, the advantage
         # statistics and the logged metrics are averaged over it (sdhn_train.data_parallel)
         self.group: Group | None = None
+        self.device = torch.device("cpu")
+
+    def to(self, device: torch.device) -> PPOLearner:
+        """Move the networks (and so what the optimisers step) to ``device`` (train.device);
+        every tensor an update builds is made there. Before the first update: the optimisers'
+        state, created at the first step, is then made on the device too."""
+        for module in (self.actor, self.critic, self.target_critic):
+            module.to(device)
+        self.device = device
+        return self
 
     @property
     def actor(self) -> Actor:
@@ -186,7 +197,7 @@ class PPOLearner:
         return sample_categorical(logits)
 
     def initial_critic_hidden(self, batch: int) -> F32:
-        return self.critic.initial_state(batch).numpy()
+        return to_numpy(self.critic.initial_state(batch))
 
     def next_critic_hidden(self) -> F32:
         if self._next_critic_hidden is None:
@@ -195,21 +206,23 @@ class PPOLearner:
 
     @torch.no_grad()
     def hidden_after(self, obs: F32, state: F32) -> tuple[F32, F32]:
-        critic_h = self.target_critic.initial_state(1)
+        dev = self.device
+        critic_h = self.target_critic.initial_state(1).to(dev)
         p = obs.shape[0]
         if p:
             out = self.target_critic.forward_sequence(
-                torch.from_numpy(obs)[:, None], torch.from_numpy(state)[:, None], critic_h,
-                torch.zeros(p, 1, dtype=torch.bool))
+                to_device(obs, dev)[:, None], to_device(state, dev)[:, None], critic_h,
+                torch.zeros(p, 1, dtype=torch.bool, device=dev))
             critic_h = out.hiddens[-1]
-        return actor_hidden_after(self.actor, obs), critic_h.numpy().copy()
+        return actor_hidden_after(self.actor, obs), to_numpy(critic_h)
 
     @torch.no_grad()
     def hypergraphs(self, rollout: Rollout) -> HypergraphSamples | None:
-        h0 = (torch.from_numpy(rollout.critic_h0) if rollout.critic_h0 is not None
-              else self.critic.initial_state(rollout.shape[1]))
-        return self.critic.hypergraphs(torch.from_numpy(rollout.obs), h0,
-                                       torch.from_numpy(rollout.resets()))
+        dev = self.device
+        h0 = (to_device(rollout.critic_h0, dev) if rollout.critic_h0 is not None
+              else self.critic.initial_state(rollout.shape[1]).to(dev))
+        return self.critic.hypergraphs(to_device(rollout.obs, dev), h0,
+                                       to_device(rollout.resets(), dev))
 
     # -- checkpoint state -----------------------------------------------------------------
 
@@ -250,7 +263,7 @@ class PPOLearner:
         adv = gae_advantages(deltas, r["done"], self.cfg.gamma, self.cfg.gae_lambda)
         carry = out.hiddens[-1] * (~r["done"][-1]).to(values.dtype)[None, :, None] \
             if h0.numel() else h0
-        self._next_critic_hidden = carry.numpy().copy()
+        self._next_critic_hidden = to_numpy(carry)
         return values, adv, value_targets(adv, values)
 
     def _actor_logits(self, r: dict[str, Tensor], envs: Tensor) -> Tensor:
@@ -362,29 +375,25 @@ class PPOLearner:
         ``num_minibatches`` chunks (with data-parallel ranks: of this process's environments,
         the same chunk sizes in every process)."""
         num_mb = max(1, min(self.cfg.num_minibatches, b))
-        return list(torch.from_numpy(self.rng.permutation(b)).chunk(num_mb))
+        return list(to_device(self.rng.permutation(b), self.device).chunk(num_mb))
 
     def update(self, rollout: Rollout) -> dict[str, float]:
         """One PPO update on a rollout; returns scalar metrics keyed by TensorBoard tag."""
         rollout.validate()
         cfg = self.cfg
-        r = {
-            "obs": torch.from_numpy(rollout.obs), "state": torch.from_numpy(rollout.state),
-            "actions": torch.from_numpy(rollout.actions),
-            "logp_old": torch.from_numpy(rollout.log_probs),
-            "rewards": torch.from_numpy(rollout.rewards),
-            "terminated": torch.from_numpy(rollout.terminated),
-            "done": torch.from_numpy(rollout.done), "resets": torch.from_numpy(rollout.resets()),
-            "final_obs": torch.from_numpy(rollout.final_obs),
-            "final_state": torch.from_numpy(rollout.final_state),
-            "actor_h0": torch.from_numpy(rollout.actor_h0),
-        }
+        dev = self.device
+        r = {name: to_device(a, dev) for name, a in (
+            ("obs", rollout.obs), ("state", rollout.state), ("actions", rollout.actions),
+            ("logp_old", rollout.log_probs), ("rewards", rollout.rewards),
+            ("terminated", rollout.terminated), ("done", rollout.done),
+            ("resets", rollout.resets()), ("final_obs", rollout.final_obs),
+            ("final_state", rollout.final_state), ("actor_h0", rollout.actor_h0))}
         # the actor's input (observation + one-hot robot id) does not depend on the parameters:
         # built once per update, not once per minibatch and epoch
         r["actor_in"] = self.actor.with_robot_id(r["obs"])
         b = rollout.shape[1]
-        h0 = (torch.from_numpy(rollout.critic_h0) if rollout.critic_h0 is not None
-              else self.critic.initial_state(b))
+        h0 = (to_device(rollout.critic_h0, dev) if rollout.critic_h0 is not None
+              else self.critic.initial_state(b).to(dev))
         t0 = time.perf_counter()
         values, adv, targets = self._targets(r, h0)
         self.timings["critic"] += time.perf_counter() - t0

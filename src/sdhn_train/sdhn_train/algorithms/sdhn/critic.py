@@ -74,7 +74,7 @@ class SDHNCritic(Critic):
         gamma = sample_skewness(hyperedge_degrees(incidence))  # [T, B]
         sk = squashed_skewness(gamma)
         l_sk = skewness_loss(sk, self.lambda_sk)
-        aux = self.lambda_cb * l_sk if self.use_skew_loss else torch.zeros((), dtype=values.dtype)
+        aux = self.lambda_cb * l_sk if self.use_skew_loss else values.new_zeros(())
         metrics = {
             "losses/skew_loss": l_sk.detach(),
             "hypergraph/skewness": sk.detach().mean(),
@@ -87,7 +87,7 @@ class SDHNCritic(Critic):
     def value_step(self, obs: Tensor, state: Tensor, h: Tensor) -> Tensor:
         """One more step from hidden h [L, K, Hg]: obs [K, N, D], state [K, S] -> values [K, N]."""
         logits, _ = self.generator.forward_sequence(
-            obs[None], h, torch.zeros(1, obs.shape[0], dtype=torch.bool))
+            obs[None], h, torch.zeros(1, obs.shape[0], dtype=torch.bool, device=obs.device))
         return self._values(logits[0], obs, state)[0]
 
     def hypergraphs(self, obs: Tensor, h0: Tensor, resets: Tensor) -> HypergraphSamples:
@@ -96,5 +96,6 @@ class SDHNCritic(Critic):
         logits, _ = self.generator.forward_sequence(obs, h0, resets)
         incidence, _ = binary_concrete(logits, self.tau, self.noise, self.stochastic)
         sk = squashed_skewness(sample_skewness(hyperedge_degrees(incidence)))
-        return HypergraphSamples(torch.sigmoid(logits).numpy().copy(),
-                                 incidence.numpy().astype(np.uint8), sk.numpy().copy())
+        return HypergraphSamples(torch.sigmoid(logits).cpu().numpy().copy(),
+                                 incidence.cpu().numpy().astype(np.uint8),
+                                 sk.cpu().numpy().copy())

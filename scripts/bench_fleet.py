@@ -79,7 +79,7 @@ class FleetRun:
         return 1e6 * self.cpu_s / (self.rounds * self.n) if self.rounds else float("nan")
 
 
-def run_graph(n: int, steps: int, weights: Path, tmp: Path, discovery: str, hosts: int,
+def run_graph(n: int, steps: int, weights: Path, tmp: Path, *, discovery: str, hosts: int,
               record: bool, timeout: float) -> FleetRun:
     out = FleetRun(n, discovery, hosts, record)
     run_dir = tmp / f"n{n}-{discovery}-h{hosts}-r{int(record)}-{time.monotonic_ns()}"
@@ -194,8 +194,8 @@ def main(argv: list[str] | None = None) -> int:
                 if hosts > n:
                     continue
                 for record in ((False, True) if args.record else (False,)):
-                    r = run_graph(n, args.steps, weights, tmp, discovery, hosts, record,
-                                  args.timeout)
+                    r = run_graph(n, args.steps, weights, tmp, discovery=discovery,
+                                  hosts=hosts, record=record, timeout=args.timeout)
                     print(row(r), flush=True)
     print(f"# load at the end {os.getloadavg()[0]:.1f}")
     return 0

@@ -26,6 +26,7 @@ from sdhn_policy.actor_runtime import (
     PolicyOutputError,
     check_temperature,
 )
+from sdhn_policy.dead_reckoning import DeadReckoner
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
 from sdhn_sim.drops import DropKind
@@ -80,12 +81,15 @@ class ActorCore:
                  runtime: ActorRuntime | None = None, *,
                  runtime_cls: type[ActorRuntime] = ActorRuntime,
                  temperature: float = 1.0, stall_rule: StallRule | None = None,
-                 skip_ahead: bool = False) -> None:
+                 skip_ahead: bool = False, dead_reckon_grid: int = 0) -> None:
         self.robot_id = robot_id
         # Realtime clock: the world steps on without this robot, so a later step of the episode
         # is taken (the GRU goes on from the last observation it saw); counted in ``skipped``.
         self.skip_ahead = skip_ahead
         self.skipped = 0  # steps of an episode never seen between two answered ones
+        # MAIF under observation latency: move a stale observation forward by the actions sent
+        # since (sdhn_policy.dead_reckoning); the grid's size, 0 = off
+        self.reckoner = DeadReckoner(1, dead_reckon_grid) if dead_reckon_grid else None
         self.temperature = check_temperature(temperature)  # sampled play only
         if stall_rule is not None and not greedy:
             raise ValueError("stall breaking is a greedy mode (greedy must be true)")
@@ -119,6 +123,8 @@ class ActorCore:
             self.hidden = self.runtime.initial_state(1)
         if self.stalls is not None:
             self.stalls.reset()
+        if self.reckoner is not None:
+            self.reckoner.reset()
 
     def _check(self, rt: ActorRuntime) -> None:
         spec = rt.spec
@@ -126,10 +132,11 @@ class ActorCore:
             raise IncompatibleWeightsError(
                 f"incompatible weights: trained for {spec.num_robots} robots (one-hot id), this "
                 f"team has {self.num_robots}")
-        if self.stalls is not None and spec.obs_size != MAIF_OBS_SIZE:
+        if (self.stalls is not None or self.reckoner is not None) and \
+                spec.obs_size != MAIF_OBS_SIZE:
             raise IncompatibleWeightsError(
-                f"incompatible weights: stall breaking reads MAIF observations ({MAIF_OBS_SIZE} "
-                f"floats), this actor takes {spec.obs_size}")
+                f"incompatible weights: stall breaking and dead reckoning read MAIF observations "
+                f"({MAIF_OBS_SIZE} floats), this actor takes {spec.obs_size}")
 
     def offer_weights(self, fmt: str, version: int, payload: bytes, sha256: str) -> bool:
         """Validate new weights and queue them for the next step; False when that version is
@@ -158,9 +165,11 @@ class ActorCore:
             self.hidden = self.runtime.initial_state(1)
 
     def on_obs(self, episode: int, step: int, robot_id: int, num_robots: int,
-               obs: npt.NDArray[np.float32], *, done: bool = False) -> Decision | Drop | None:
+               obs: npt.NDArray[np.float32], *, done: bool = False,
+               obs_age: int = 0) -> Decision | Drop | None:
         """Answer one observation; None when no answer is due (``done``: the episode's final
-        observation, which the simulator does not wait on)."""
+        observation, which the simulator does not wait on). ``obs_age``: how many steps old the
+        observation is (dead reckoning moves it forward by this robot's last sent actions)."""
         if done:
             return None
         if robot_id != self.robot_id or num_robots != self.num_robots:
@@ -183,6 +192,10 @@ class ActorCore:
             self.episode, self.last_step = episode, None
             if self.stalls is not None:
                 self.stalls.reset()
+            if self.reckoner is not None:
+                self.reckoner.reset()
+        if self.reckoner is not None:
+            obs = self.reckoner.correct(obs[None], [obs_age])[0]
         greedy, temperature = self.greedy, self.temperature
         if self.stalls is not None and self.stalls.update(obs[None])[0]:
             greedy, temperature = False, self.stalls.rule.temperature
@@ -196,6 +209,8 @@ class ActorCore:
             return self._unanswered(step, None, Drop(DropKind.BAD_POLICY_OUTPUT, str(e)))
         self.hidden = h_next
         self.last_step = step
+        if self.reckoner is not None:
+            self.reckoner.record(action)
         return Decision(int(action[0]), float(logp[0]), self.runtime.version)
 
     def _unanswered(self, step: int, h_next: npt.NDArray[np.float32] | None, drop: Drop) -> Drop:

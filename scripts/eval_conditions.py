@@ -1,0 +1,173 @@
+#!/usr/bin/env python3
+"""Shipped MAIF policies under deployment conditions: success (survivors' success under robot
+failure), makespan and makespan over the ideal world, with 95 % intervals, at several severities
+of each condition (sdhn_sim.envs.conditions; logic in sdhn_train.analysis.condition_eval).
+
+    .venv/bin/python scripts/eval_conditions.py models/maif-10-sdhn --instances 100 \\
+        --conditions latency lost_actions --out /tmp/cond.json --markdown /tmp/cond.md
+    .venv/bin/python scripts/eval_conditions.py models/maif-10-sdhn --task maif-20 \\
+        --conditions ideal                          # team-size transfer
+    .venv/bin/python scripts/eval_conditions.py models/maif-10-sdhn --modes card \\
+        --dead-reckon both --conditions latency     # the deployment rule against the cliff
+
+Each row plays instances 0..K-1 of the large held-out set (K = --instances; maps of 5
+formations), the condition model seeded --seed. Modes: ``card`` (the card's deployment mode),
+``greedy``; ``--dead-reckon on|off|both`` adds or compares dead reckoning.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_sim.envs.conditions import Conditions, ConditionsError, conditions_from_dict
+from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+from sdhn_train.analysis.condition_eval import (
+    DEFAULT_SET,
+    Mode,
+    card_mode,
+    evaluate_under,
+    records_json,
+    set_instances,
+    summarise_under,
+)
+from sdhn_train.analysis.heldout_eval import set_checksum, write_json
+
+# condition name -> (severities, the Conditions of one severity)
+SWEEPS: dict[str, tuple[list[float], Any]] = {
+    "latency": ([1, 2, 3, 4], lambda k: Conditions(latency=int(k))),
+    "latency_random": ([1, 2, 3, 4],
+                       lambda k: Conditions(latency=int(k), latency_random=True)),
+    "lost_actions": ([0.05, 0.1, 0.2, 0.4], lambda p: Conditions(lost_actions=p)),
+    "slow_half": ([0.75, 0.5, 0.25, 0.1],
+                  lambda r: Conditions(slow_fraction=0.5, slow_rate=r)),
+    "position_noise": ([0.05, 0.1, 0.2, 0.4], lambda p: Conditions(position_noise=p)),
+    "cell_misread": ([0.02, 0.05, 0.1, 0.2], lambda p: Conditions(cell_misread=p)),
+    "failures": ([1, 2, 3, 4], lambda k: Conditions(failures=int(k))),
+}
+SEVERITY_NAMES = {"latency": "steps", "latency_random": "max steps", "lost_actions": "p",
+                  "slow_half": "rate of the slow half", "position_noise": "p",
+                  "cell_misread": "p", "failures": "robots"}
+
+
+def fmt_ci(m: float | None, ci: Any, digits: int = 2) -> str:
+    if m is None:
+        return "NC"
+    return f"{m:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]" if ci else f"{m:.{digits}f}"
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    out = ["| policy | task | mode | condition | severity | success [95 % CI, maps] | "
+           "team success | makespan [95 % CI] | makespan / ideal [95 % CI, paired] |",
+           "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        s = r["summary"]
+        out.append(
+            f"| {r['policy']} | {r['task']} | {r['mode']} | {r['condition']} | "
+            f"{r['severity']} | {fmt_ci(s['success_rate'], s['success_ci95_maps'], 3)} | "
+            f"{s['team_success_rate']:.3f} | "
+            f"{fmt_ci(s['makespan_mean'], s['makespan_ci95'], 1)} | "
+            f"{fmt_ci(s.get('makespan_over_ideal'), s.get('makespan_over_ideal_ci95'))} |")
+    return "\n".join(out) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
+    p.add_argument("models", nargs="+", type=Path, help="model directories (card.json, actor)")
+    p.add_argument("--task", help="MAIF task to play (default: the card's; another = transfer)")
+    p.add_argument("--conditions", nargs="+", default=list(SWEEPS),
+                   help=f"conditions to sweep, of {['ideal', *SWEEPS]}")
+    p.add_argument("--severities", nargs="+", type=float,
+                   help="override the severities of every swept condition")
+    p.add_argument("--block", help="one extra condition as a YAML/JSON mapping "
+                                   "(a conditions: block), e.g. '{latency: 1, failures: 1}'")
+    p.add_argument("--modes", nargs="+", default=["card"], choices=("card", "greedy"))
+    p.add_argument("--dead-reckon", choices=("off", "on", "both"), default="off")
+    p.add_argument("--instances", type=int, default=100)
+    p.add_argument("--set", default=DEFAULT_SET)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, help="JSON: every row's summary and per-instance records")
+    p.add_argument("--markdown", type=Path)
+    args = p.parse_args(argv)
+    bad = [c for c in args.conditions if c != "ideal" and c not in SWEEPS]
+    if bad:
+        print(f"eval_conditions: --conditions: {bad} unknown; allowed: ideal, "
+              f"{', '.join(SWEEPS)}", file=sys.stderr)
+        return 2
+    if args.instances < 1:
+        print("eval_conditions: --instances must be >= 1", file=sys.stderr)
+        return 2
+    extra: list[tuple[str, str, Conditions]] = []
+    if args.block:
+        import yaml
+        try:
+            extra.append(("block", args.block, conditions_from_dict(yaml.safe_load(args.block))))
+        except (ConditionsError, yaml.YAMLError) as e:
+            print(f"eval_conditions: --block: {e}", file=sys.stderr)
+            return 2
+    plan: list[tuple[str, str, Conditions]] = []
+    for c in args.conditions:
+        if c == "ideal":
+            continue
+        sev, make = SWEEPS[c]
+        for v in args.severities or sev:
+            plan.append((c, f"{v:g}", make(v)))
+    plan += extra
+    reckon = {"off": [False], "on": [True], "both": [False, True]}[args.dead_reckon]
+    rows: list[dict[str, Any]] = []
+    for model in args.models:
+        card_task = None
+        card = model / "card.json"
+        if card.is_file():
+            import json
+            card_task = json.loads(card.read_text())["env"]
+        task = args.task or card_task
+        if task not in MAIF_CONFIGS:
+            print(f"eval_conditions: --task: {task!r} is not a MAIF task; allowed: "
+                  f"{', '.join(MAIF_CONFIGS)}", file=sys.stderr)
+            return 2
+        rt = ActorRuntime.from_file(model / "actor.safetensors")
+        inst = set_instances(task, args.set)
+        for mode_name in args.modes:
+            base = card_mode(model) if mode_name == "card" else Mode()
+            t0 = time.monotonic()
+            ideal = evaluate_under(rt, task, Conditions(), base, instances=args.instances,
+                                   which=args.set, seed=args.seed)
+            for dr in reckon:
+                mode = dataclasses.replace(base, dead_reckon=dr)
+                # dead reckoning changes nothing without latency: one ideal row per mode
+                first = [] if dr and len(reckon) > 1 else [("ideal", "-", Conditions(), ideal)]
+                runs = [*first, *[(c, v, cond, None) for c, v, cond in plan]]
+                for cname, sev, cond, recs0 in runs:
+                    recs = recs0
+                    if recs is None:
+                        t0 = time.monotonic()
+                        recs = evaluate_under(rt, task, cond, mode, instances=args.instances,
+                                              which=args.set, seed=args.seed)
+                    s = summarise_under(recs, ideal, inst.num_formations)
+                    took = time.monotonic() - t0
+                    print(f"[cond] {model.name} on {task} ({mode.label()}) {cname} {sev}: "
+                          f"success {s['success_rate']:.3f} {s['success_ci95_maps']}, makespan "
+                          f"{s['makespan_mean']}, / ideal {s.get('makespan_over_ideal')}, "
+                          f"{took:.0f} s", flush=True)
+                    rows.append({"policy": model.name, "task": task, "set": args.set,
+                                 "set_checksum": set_checksum(inst), "mode": mode.label(),
+                                 "dead_reckon": dr, "condition": cname, "severity": sev,
+                                 "conditions": cond.to_dict(), "seed": args.seed,
+                                 "summary": s, "records": records_json(recs)})
+                    if args.out:  # after every row: a long sweep keeps what it has
+                        write_json(args.out, rows)
+    table = markdown(rows)
+    if args.markdown:
+        args.markdown.write_text(table)
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,57 @@
+"""Evaluation under deployment conditions (sdhn_train.analysis.condition_eval): the ideal world
+reproduces the held-out evaluation, and dead reckoning is measured against plain play."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.stall_breaker import StallRule
+from sdhn_sim.envs.conditions import Conditions
+from sdhn_train.analysis.condition_eval import Mode, card_mode, evaluate_under, summarise_under
+from sdhn_train.analysis.heldout_eval import evaluate_set
+
+ACTOR = "models/maif-tiny-sdhn/actor.safetensors"
+
+
+def test_the_ideal_world_reproduces_the_heldout_evaluation() -> None:
+    rt = ActorRuntime.from_file(ACTOR)
+    mode = Mode(stall=StallRule())
+    got = evaluate_under(rt, "maif-tiny", Conditions(), mode, which="heldout")
+    want = evaluate_set(rt, "maif-tiny", "heldout", stall=StallRule())
+    assert [(r.success, r.makespan) for r in got] == [(r.success, r.makespan) for r in want]
+    s = summarise_under(got, got, num_formations=10)
+    assert s["makespan_over_ideal"] == 1.0 and s["success_rate"] == s["team_success_rate"]
+
+
+def test_survivors_success_is_reported_beside_the_team_success_under_failure() -> None:
+    rt = ActorRuntime.from_file(ACTOR)
+    recs = evaluate_under(rt, "maif-tiny", Conditions(failures=1, failure_horizon=5),
+                          Mode(stall=StallRule()), instances=20, which="heldout")
+    s = summarise_under(recs, None, num_formations=10)
+    assert all(r.failed == 1 for r in recs if not r.team_success)
+    assert s["success_rate"] > s["team_success_rate"]
+
+
+def test_card_mode_reads_the_deployment_mode() -> None:
+    m = card_mode("models/maif-10-sdhn")
+    assert m.greedy and m.stall == StallRule.parse("2,10,2")
+    assert card_mode("models/maif-20-sdhn") == Mode(greedy=False, temperature=0.25)
+    with pytest.raises(ValueError, match="stall breaking"):
+        Mode(greedy=False, stall=StallRule()).check()
+
+
+def test_dead_reckoning_holds_up_under_two_steps_of_latency() -> None:
+    rt = ActorRuntime.from_file(ACTOR)
+    mode = Mode(stall=StallRule())
+    late = Conditions(latency=2)
+    ideal = evaluate_under(rt, "maif-tiny", Conditions(), mode, instances=30, which="heldout")
+    plain = summarise_under(evaluate_under(rt, "maif-tiny", late, mode, instances=30,
+                                           which="heldout"), ideal, 10)
+    reck = summarise_under(evaluate_under(rt, "maif-tiny", late,
+                                          dataclasses.replace(mode, dead_reckon=True),
+                                          instances=30, which="heldout"), ideal, 10)
+    assert reck["success_rate"] >= plain["success_rate"]
+    assert reck["makespan_over_ideal"] < plain["makespan_over_ideal"]

@@ -91,7 +91,7 @@ class ConditionResult:
 
 def evaluate_under(policy: Policy, task: str, cond: Conditions, mode: Mode, *,
                    instances: int | None = None, which: str = DEFAULT_SET, seed: int = 0,
-                   reward: str = "corrected") -> list[ConditionResult]:
+                   reward: str = "corrected", max_steps: int = 500) -> list[ConditionResult]:
     """One episode per instance 0..instances-1 of set ``which`` under ``cond`` (see the module
     docstring); the condition model is seeded ``seed`` (env ``b`` draws as a simulator seeded
     ``seed + b`` replaying instance ``b``)."""
@@ -99,7 +99,7 @@ def evaluate_under(policy: Policy, task: str, cond: Conditions, mode: Mode, *,
     inst = set_instances(task, which)
     b = inst.num_instances if instances is None else min(int(instances), inst.num_instances)
     base = MaifEnv(inst, num_envs=b, seed=seed, name=task, instance_order="round_robin",
-                   instance_ids=list(range(b)), reward=reward)
+                   instance_ids=list(range(b)), reward=reward, max_steps=max_steps)
     env = ConditionedEnv(base, cond)
     n = env.num_robots
     obs, _ = env.reset(seed=seed)

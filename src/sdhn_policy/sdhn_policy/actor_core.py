@@ -217,6 +217,8 @@ class ActorCore:
         """A step the policy could not answer: taken (the next step is in order, not 'future'),
         the GRU state carried on when it is finite, else back to zeros."""
         assert self.runtime is not None
+        if self.reckoner is not None:
+            self.reckoner.record([0])  # nothing sent: the simulator takes 'stay'
         if h_next is not None and np.isfinite(h_next).all():
             self.hidden = h_next
         else:

@@ -64,6 +64,46 @@ def test_missing_action_is_one_clear_error() -> None:
         env.step({"robot_0": 1})
 
 
+BAD_ACTIONS = {  # issue 54 item 8: truncated, taken as 1, or raw Python errors
+    "float": 2.7, "whole float": 2.0, "string": "1", "bool": True, "numpy bool": np.bool_(True),
+    "nan": float("nan"), "none": None, "negative": -1, "too large": 5, "huge": 2**70,
+    "list": [1], "numpy float": np.float32(1.0),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_ACTIONS))
+def test_an_invalid_action_is_one_clear_error_naming_the_agent(case: str) -> None:
+    env = parallel_env("maif-tiny")
+    env.reset(seed=0)
+    actions: dict[str, Any] = {a: 0 for a in env.agents}
+    actions["robot_2"] = BAD_ACTIONS[case]
+    with pytest.raises(ValueError, match=r"actions\['robot_2'\].*allowed"):
+        env.step(actions)
+    assert env.agents, "a refused step must not end the episode"
+    env.step({a: np.int64(1) for a in env.agents})  # NumPy integers are actions
+
+
+def test_extra_agents_are_refused_and_unknown_reset_options_warned() -> None:
+    env = parallel_env("maif-tiny")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="unknown agents"):
+        env.step({**{a: 0 for a in env.agents}, "robot_9": 0})
+    with pytest.warns(UserWarning, match="difficulty"):  # PettingZoo's API test passes options
+        env.reset(seed=0, options={"difficulty": 3})
+    env.reset(seed=0, options={})  # empty is no option
+
+
+@pytest.mark.parametrize("action", [[0, 1, 2], [0, 1, 2, 3, 4], np.zeros((2, 2), int),
+                                    [0.5, 1, 2, 3], [None, 1, 2, 3], 3, np.full(4, np.nan)])
+def test_a_joint_action_of_the_wrong_shape_or_type_is_one_clear_error(action: Any) -> None:
+    register_gymnasium_envs()
+    env = gymnasium.make(gym_id("maif-tiny")).unwrapped
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="allowed"):
+        env.step(action)
+    env.step(np.array([0, 1, 2, 3]))
+
+
 def test_gymnasium_ids_make_a_checked_joint_env() -> None:
     ids = register_gymnasium_envs()
     assert gym_id("maif-10") in ids and gym_id("rware-3") in ids

@@ -28,6 +28,7 @@ it as ``sdhn/<name>-v0`` for every name of :func:`sdhn_sim.envs.registry.env_nam
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import asdict
 from typing import Any, ClassVar
 
@@ -91,6 +92,9 @@ class SdhnParallelEnv(ParallelEnv):
 
     def reset(self, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+        if options:  # none are defined; PettingZoo's API test passes some, so warn, not raise
+            warnings.warn(f"reset options {sorted(map(str, options))[:5]} ignored: this "
+                          "environment has none", UserWarning, stacklevel=2)
         obs, state = self.env.reset(seed)
         self._state = np.asarray(state, dtype=np.float32)
         self.agents = list(self.possible_agents)
@@ -102,7 +106,11 @@ class SdhnParallelEnv(ParallelEnv):
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"actions: missing for {missing}; every live agent acts each step")
-        joint = np.array([int(actions[a]) for a in self.possible_agents], dtype=np.int64)
+        unknown = [str(a)[:40] for a in actions if a not in self.agents]
+        if unknown:
+            raise ValueError(f"actions: unknown agents {unknown[:5]}; allowed: {self.agents}")
+        joint = np.array([check_action(a, actions[a], self.env.num_actions)
+                          for a in self.possible_agents], dtype=np.int64)
         res = self.env.step(joint)
         self._state = np.asarray(res.state, dtype=np.float32)
         rewards = _robot_rewards(self.env, res.reward, res.info)
@@ -132,6 +140,20 @@ class SdhnParallelEnv(ParallelEnv):
 
     def close(self) -> None:
         pass
+
+
+def check_action(agent: str, value: Any, num_actions: int) -> int:
+    """``value`` as an action index in [0, num_actions): a Python or NumPy integer (also a 0-d
+    array), never a float, bool or string (2.7 was truncated to 2, "1" and True taken as 1);
+    ValueError naming the agent and what is allowed."""
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        raise ValueError(f"actions[{agent!r}]: {str(value)[:40]!r} of type "
+                         f"{type(value).__name__}; allowed: an integer in 0 .. {num_actions - 1}")
+    if not 0 <= value < num_actions:
+        raise ValueError(f"actions[{agent!r}]: {value}; allowed: 0 .. {num_actions - 1}")
+    return int(value)
 
 
 def episode_info(episode: EpisodeStats) -> dict[str, int | float]:
@@ -174,13 +196,17 @@ class JointEnv(gymnasium.Env):
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         super().reset(seed=seed)
-        obs, _ = self.parallel.reset(seed=seed)
+        obs, _ = self.parallel.reset(seed=seed, options=options)
         return np.stack(list(obs.values())), {"state": self.parallel.state()}
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         agents = self.parallel.possible_agents
-        obs, rewards, term, trunc, infos = self.parallel.step(
-            {a: int(x) for a, x in zip(agents, np.asarray(action), strict=True)})
+        joint = np.asarray(action, dtype=object if isinstance(action, list | tuple) else None)
+        if joint.shape != (len(agents),):
+            raise ValueError(f"action: shape {joint.shape}; allowed: ({len(agents)},) integers "
+                             f"in 0 .. {self.parallel.env.num_actions - 1}")
+        obs, rewards, term, trunc, infos = self.parallel.step(dict(zip(agents, joint,
+                                                                       strict=True)))
         info = {"state": self.parallel.state(), "robot_rewards": np.array(list(rewards.values()))}
         info.update(infos[agents[0]])
         return (np.stack(list(obs.values())), float(sum(rewards.values())),

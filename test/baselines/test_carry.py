@@ -182,3 +182,24 @@ def test_a_finished_run_keeps_its_actor_until_its_absolute_metric_is_cached(
     (run / "metrics.csv").write_text("step,wall_time,tag,value\n")
     save(logdir, tmp_path / "carried")
     assert (tmp_path / "carried" / run.name / "actor.safetensors").is_file()
+
+
+def test_carry_refuses_a_destination_that_overlaps_the_source(tmp_path: Path) -> None:
+    """Issue 54 item 8: ``save LOGDIR LOGDIR`` replaced every run by its trimmed copy
+    (TensorBoard events, checkpoints, dotfiles gone), exit 0."""
+    logdir = tmp_path / "logs"
+    run = logdir / "maif-tiny__sdhn__s1"
+    run.mkdir(parents=True)
+    (run / "run.json").write_text("{}")
+    (run / "metrics.csv").write_text("step\n")
+    (run / "events.out.tfevents.1").write_bytes(b"tb")
+    (run / ".hidden").write_text("x")
+    (tmp_path / "link").symlink_to(logdir)
+    for cmd, a, b in (("save", logdir, logdir), ("save", logdir, logdir / "carry"),
+                      ("save", logdir / "maif-tiny__sdhn__s1", logdir),
+                      ("save", logdir, tmp_path / "link"), ("restore", logdir, logdir),
+                      ("restore", logdir, logdir / "sub")):
+        assert main([cmd, str(a), str(b)]) == 2, (cmd, a, b)
+    assert sorted(p.name for p in run.iterdir()) == [
+        ".hidden", "events.out.tfevents.1", "metrics.csv", "run.json"]
+    assert not (logdir / "carry").exists() and not (logdir / "sub").exists()

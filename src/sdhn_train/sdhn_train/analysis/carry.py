@@ -195,11 +195,21 @@ def tree_bytes(root: Path) -> int:
     return sum(f.stat().st_size for f in root.rglob("*") if f.is_file() and not f.is_symlink())
 
 
+def check_apart(src: Path, dest: Path, src_name: str, dest_name: str) -> None:
+    """CarryError when ``dest`` is ``src`` or one holds the other (symlinks resolved): saving a
+    log directory into itself replaced every run by its trimmed copy."""
+    a, b = src.resolve(), dest.resolve()
+    if a == b or a in b.parents or b in a.parents:
+        raise CarryError(f"{dest_name} {dest} overlaps {src_name} {src}; allowed: a directory "
+                         f"outside it (e.g. carry/<suite>-<budget>)")
+
+
 def save(logdir: Path, dest: Path, max_file_bytes: int = MAX_FILE_BYTES) -> list[str]:
     """Carry every run of ``logdir`` into ``dest`` (replacing what ``dest`` held for those runs;
     runs only in ``dest`` stay). Returns one line per run and per file left out, and one on
     ``dest`` and, where ``dest`` lies in a ``carry/`` folder, all of it against the budget."""
     lines = []
+    check_apart(logdir, dest, "logdir", "dest")
     dest.mkdir(parents=True, exist_ok=True)
     for run in run_dirs(logdir):
         check_name(run.name, f"{run}")  # a path component we may write
@@ -227,6 +237,7 @@ def restore(src: Path, logdir: Path) -> list[str]:
     ``logdir`` holds, the packed logs unpacked (``metrics.csv``, as the trainer writes it and a
     resumed run appends to it). Returns one line per run."""
     lines = []
+    check_apart(src, logdir, "src", "logdir")
     logdir.mkdir(parents=True, exist_ok=True)
     for run in run_dirs(src):
         check_name(run.name, f"{run}")  # carried from elsewhere: stays inside logdir

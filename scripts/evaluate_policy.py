@@ -16,8 +16,8 @@ part on large teams; an interrupted computation resumes).
 from __future__ import annotations
 
 import argparse
-import json
 import math
+import os
 import sys
 import time
 from dataclasses import asdict
@@ -26,6 +26,8 @@ from typing import Any
 
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.stall_breaker import StallRule
+from sdhn_policy.weights import WeightsError
+from sdhn_sim import bounded_json
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_sim.envs.registry import INSTANCE_SETS
 from sdhn_train.analysis.heldout_eval import (
@@ -51,7 +53,14 @@ def resolve(actor: Path, task: str | None) -> tuple[str, Path, str]:
         card = actor / "card.json"
         f = actor / "actor.safetensors"
         if task is None and card.is_file():
-            task = str(json.loads(card.read_text())["env"])
+            try:
+                named = bounded_json.loads(card.read_bytes())["env"]
+                if not isinstance(named, str):
+                    raise TypeError(f"env is {type(named).__name__}, not a string")
+            except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
+                raise ValueError(f"actor: {card} does not name a task (its 'env'): "
+                                 f"{str(e)[:200]}; or give --task") from None
+            task = named
         label = actor.name
     else:
         f = actor
@@ -64,6 +73,17 @@ def resolve(actor: Path, task: str | None) -> tuple[str, Path, str]:
     if task not in MAIF_CONFIGS:
         raise ValueError(f"--task: {task!r} is not a MAIF task; allowed: {', '.join(MAIF_CONFIGS)}")
     return label, f, task
+
+
+def output_problem(path: Path) -> str | None:
+    """Why ``path`` cannot take an output file (None: it can)."""
+    if path.is_dir():
+        return "is a directory; allowed: a file path"
+    if not path.parent.is_dir():
+        return "is not in an existing directory"
+    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        return "is not writable"
+    return None
 
 
 def fmt(x: float | None, digits: int = 2) -> str:
@@ -147,15 +167,33 @@ def main(argv: list[str] | None = None) -> int:
     if args.wedge_steps < 1:
         print("evaluate_policy: --wedge-steps must be an integer >= 1", file=sys.stderr)
         return 2
+    # Everything that can be wrong is checked before the evaluation (which takes minutes to
+    # hours): the outputs are written after it, and their errors lost the results.
+    for flag, path in (("--out", args.out), ("--markdown", args.markdown)):
+        problem = None if path is None else output_problem(path)
+        if problem:
+            print(f"evaluate_policy: {flag}: {path} {problem}", file=sys.stderr)
+            return 2
+    if not args.no_planner:
+        cache = args.planner_cache
+        existing = next(p for p in (cache, *cache.parents) if p.exists())  # it creates the rest
+        problem = (f"cannot be a directory ({existing} is a file)" if not existing.is_dir() else
+                   f"is not writable ({existing})" if not os.access(existing, os.W_OK) else None)
+        if problem:
+            print(f"evaluate_policy: --planner-cache: {cache} {problem}", file=sys.stderr)
+            return 2
     try:
         actors = [resolve(a, args.task) for a in args.actors]
+        policies: list[Policy] = [ActorRuntime.from_file(path) if args.runtime == "numpy"
+                                  else TorchPolicy(path) for _, path, _ in actors]
+    except WeightsError as e:
+        print(f"evaluate_policy: actor: {e.reason}", file=sys.stderr)
+        return 2
     except ValueError as e:
         print(f"evaluate_policy: {e}", file=sys.stderr)
         return 2
     results = []
-    for label, path, task in actors:
-        policy: Policy = (ActorRuntime.from_file(path) if args.runtime == "numpy"
-                          else TorchPolicy(path))
+    for (label, path, task), policy in zip(actors, policies, strict=True):
         for which in args.sets:
             inst = set_instances(task, which)
             t0 = time.monotonic()

@@ -129,6 +129,40 @@ def test_evaluate_policy_script(tmp_path: Path) -> None:
         assert bad.returncode == 2 and why in bad.stderr, bad.stderr
 
 
+def test_evaluate_policy_checks_outputs_and_inputs_before_evaluating(tmp_path: Path) -> None:
+    """Issue 54 item 8: --out and --planner-cache were checked after the whole evaluation (the
+    results lost with a traceback); a malformed sidecar or card.json gave a traceback or a
+    message without the file name. Each is one line naming the flag or file, exit 2, before
+    any episode is played (each run returns in seconds, with no '[eval]' line)."""
+    import shutil
+
+    script = [sys.executable, str(ROOT / "scripts" / "evaluate_policy.py")]
+    model = tmp_path / "model"
+    shutil.copytree(TINY.parent, model)
+    (tmp_path / "a_dir").mkdir()
+    (tmp_path / "cache_file").write_text("x")
+    bad_card = tmp_path / "bad_card"
+    shutil.copytree(TINY.parent, bad_card)
+    (bad_card / "card.json").write_text("[" * 5000)
+    bad_sidecar = tmp_path / "bad_sidecar"
+    shutil.copytree(TINY.parent, bad_sidecar)
+    (bad_sidecar / "actor.json").write_text('{"format": 1}')
+    cases = [
+        ([str(model), "--out", str(tmp_path / "a_dir")], "--out"),
+        ([str(model), "--out", str(tmp_path / "no" / "e.json")], "--out"),
+        ([str(model), "--markdown", str(tmp_path / "a_dir")], "--markdown"),
+        ([str(model), "--planner-cache", str(tmp_path / "cache_file")], "--planner-cache"),
+        ([str(bad_card)], str(bad_card / "card.json")),
+        ([str(bad_sidecar)], str(bad_sidecar / "actor.json")),
+    ]
+    for args, named in cases:
+        res = subprocess.run([*script, *args, "--sets", "heldout"], capture_output=True,
+                             text=True, timeout=600, check=False)
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1 and named in lines[0], (args, res.stderr)
+        assert "[eval]" not in res.stdout, (args, res.stdout)
+
+
 class CountingStayPolicy(StayPolicy):
     """Stays when greedy, moves down when sampled; counts the sampled calls."""
 

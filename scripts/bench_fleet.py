@@ -167,6 +167,41 @@ def row(r: FleetRun) -> str:
     return line + (f"  FAILED: {r.note}" if not r.ok else "")
 
 
+def plot_table(text: str, figure: Path) -> None:
+    """The cost curve from this script's printed table (its own output, saved): CPU per
+    robot-round and RSS per actor process against N, one line per discovery mode and layout."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series: dict[str, list[tuple[int, float, float]]] = {}
+    for line in text.splitlines():
+        parts = line.split()
+        if len(parts) < 14 or not parts[0].isdigit() or "FAILED" in line:
+            continue
+        layout = "process" if parts[2] == "process" else f"{parts[2]} hosts"
+        rest = parts[3:] if layout == "process" else parts[4:]  # ready s, matched s, ...
+        if rest[8] != "-":  # a recorded run
+            continue
+        series.setdefault(f"{parts[1]}, {layout}", []).append(
+            (int(parts[0]), float(rest[4]), float(rest[6])))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
+    for label, pts in sorted(series.items()):
+        pts.sort()
+        ns = [p[0] for p in pts]
+        ax1.plot(ns, [p[1] for p in pts], marker="o", label=label)
+        ax2.plot(ns, [p[2] for p in pts], marker="o", label=label)
+    ax1.set(xlabel="robots N", ylabel="CPU µs per robot-round (whole graph)", xscale="log")
+    ax2.set(xlabel="robots N", ylabel="RSS per actor or actor-host process (MB)",
+            xscale="log")
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+    ax1.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(figure, dpi=110)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -179,7 +214,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="actor_hosts values (0 = one process per robot)")
     ap.add_argument("--record", action="store_true", help="also each graph with the recorder")
     ap.add_argument("--timeout", type=float, default=240.0, help="start_timeout per run (s)")
+    ap.add_argument("--plot", nargs=2, type=Path, metavar=("TABLE", "FIGURE"),
+                    help="only draw FIGURE (png) from a saved TABLE this script printed")
     args = ap.parse_args(argv)
+    if args.plot:
+        plot_table(args.plot[0].read_text(), args.plot[1])
+        return 0
     os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 90 + 10))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     tmp = Path(tempfile.mkdtemp(prefix="bench-fleet-"))

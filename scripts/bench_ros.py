@@ -1,7 +1,8 @@
 #!/usr/bin/env python
 """Benchmark of the ROS deployment stack (prints figures; not a test). Run with the venv's python:
 
-    .venv/bin/python scripts/bench_ros.py [--robots 4 10 20] [--steps 300] [--record]
+    .venv/bin/python scripts/bench_ros.py [--robots 4 10 20 40 100] [--steps 300] [--record]
+    .venv/bin/python scripts/bench_ros.py --fleet --robots 4 10 20 40 --hosts 0 2  # the fleet
 
 1. Lock-step team-steps/s in deploy mode (``sdhn_sim sim`` + N ``sdhn_policy actor`` processes,
    MAIF with N robots, greedy NumPy policy) next to a minimal rclpy ping-pong ceiling measured in
@@ -37,12 +38,14 @@ from pathlib import Path
 
 import numpy as np
 
+from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_sim.ros import cdr, topics
 from sdhn_sim.ros.status import EventReader
 
 ROOT = Path(__file__).resolve().parents[1]
 ROS2 = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run"]
-ENVS = {4: "maif-tiny", 10: "maif-10", 20: "maif-20"}
+ENVS = {c.num_robots: name for name, c in MAIF_CONFIGS.items() if name != "maif-solo"}
+"""N -> the MAIF task with N robots: 4 (maif-tiny), 10, 16, 20, 30, 40, 60, 100."""
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
 
@@ -346,8 +349,16 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=2,
                     help="interleaved repeats per figure; the best is shown (other load on the "
                          "machine only ever slows a run down)")
+    ap.add_argument("--fleet", action="store_true",
+                    help="the fleet cost curve instead: whole graphs through the launcher, "
+                         "processes or actor hosts, simple discovery or the server "
+                         "(scripts/bench_fleet.py; its options follow --fleet)")
     ap.add_argument("--echo", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--ns", default="/pingpong", help=argparse.SUPPRESS)
+    if "--fleet" in sys.argv[1:]:
+        from bench_fleet import main as fleet_main
+
+        return fleet_main([a for a in sys.argv[1:] if a != "--fleet"])
     args = ap.parse_args()
     if args.echo is not None:
         return echo_main(args.echo, args.ns)

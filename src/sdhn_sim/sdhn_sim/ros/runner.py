@@ -34,6 +34,12 @@ from rclpy.signals import SignalHandlerOptions
 
 from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.ros import topics
+from sdhn_sim.ros.params_file import (
+    ParamsFileError,
+    check_params_file,
+    params_files,
+    unknown_parameters,
+)
 from sdhn_sim.ros.status import write_ready
 
 
@@ -63,8 +69,19 @@ def run_node(
     args = list(sys.argv if argv is None else argv)
     prog = args[0] if args else "node"
     clean_fastdds_shm()  # what killed participants left in /dev/shm (sdhn_sim.litter)
+    try:  # before rcl: a file it cannot parse was a 23-line traceback from rclpy.init
+        for path in params_files(args):
+            check_params_file(path)
+    except ParamsFileError as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
     context = Context()
-    rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as error:  # rcl's RCLError: whatever else it refuses in the ROS arguments
+        first = (str(error).strip().splitlines() or [type(error).__name__])[0]
+        print(f"{prog}: error: ROS arguments: {first[:300]}", file=sys.stderr)
+        return 2
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
@@ -77,6 +94,15 @@ def run_node(
             return 2
         nodes = [made] if isinstance(made, Node) else list(made)
         node = nodes[0]
+        for each in nodes:
+            unknown = unknown_parameters(list(each._parameter_overrides),
+                                         list(each._parameters))
+            if unknown:  # a misspelt name did nothing, silently
+                shown = ", ".join(n[:60] for n in unknown[:10])
+                more = f" and {len(unknown) - 10} more" if len(unknown) > 10 else ""
+                each.get_logger().warning(
+                    f"unknown parameters {shown}{more}: this node does not declare them "
+                    "(misspelt?); they have no effect")
         # Everything built so far (imports: rclpy, NumPy, torch in the trainer) lives as long as
         # the process: keep it out of the garbage collector's full passes, which otherwise walk
         # it all and stall the callbacks (hundreds of ms with torch imported, on a busy machine).

@@ -16,7 +16,10 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
     package_data={PACKAGE: ["data/*.npz", "data/*.xml"]},
-    install_requires=["setuptools"],
+    # What the environments need when installed alone (pip install ./src/sdhn_sim; no ROS, no
+    # torch: docs/onnx-and-pettingzoo.md). The nodes' rclpy comes from the ROS wheels or a ROS
+    # install, as for every package here.
+    install_requires=["setuptools", "numpy>=2.0", "gymnasium>=1.0", "pettingzoo>=1.24"],
     zip_safe=False,
     maintainer="sdhn developers",
     maintainer_email="sdhn-dev@example.com",

@@ -165,3 +165,26 @@ def test_episode_metrics_are_numbers_with_documented_sentinels(max_steps: int,
         assert info["makespan"] == NOT_COMPLETED and stats.makespan is None, info
     assert info["deliveries"] == NOT_APPLICABLE
     assert episode_from_info(info) == stats
+
+
+def test_flat_infos_hold_the_same_numeric_keys_at_every_step() -> None:
+    """TorchRL keeps the keys of reset()'s infos only: with flat_infos they are all there from
+    the start, numbers, and on the last step they are the episode's metrics."""
+    from sdhn_sim.envs.pettingzoo_env import episode_info
+
+    env = parallel_env("maif-tiny", seed=0, max_steps=4, flat_infos=True)
+    twin = make_single_env("maif-tiny", seed=0, max_steps=4)
+    _, infos = env.reset(seed=1)
+    twin.reset(seed=1)
+    keys = set(infos["robot_0"])
+    assert "episode" not in keys and {"episode_done", "episode_makespan"} <= keys, keys
+    while env.agents:
+        _o, _r, _t, _tr, infos = env.step({a: 0 for a in env.agents})
+        res = twin.step(np.zeros(4, dtype=np.int64))
+        for info in infos.values():
+            assert set(info) == keys and all(isinstance(v, int | float) for v in info.values())
+    last = infos["robot_3"]
+    assert last["episode_done"] == 1
+    want = episode_info(res.info["episode"])
+    assert {k: last[f"episode_{k}"] for k in want if k != "env_index"} == {
+        k: v for k, v in want.items() if k != "env_index"}

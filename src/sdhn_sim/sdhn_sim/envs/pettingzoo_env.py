@@ -21,6 +21,13 @@ goal or ``NOT_COMPLETED`` (-1) when the episode did not complete, ``deliveries``
 ``NOT_APPLICABLE`` (-1) elsewhere; :func:`episode_from_info` gives back the project's
 ``EpisodeStats`` (``None`` for "not completed").
 
+TorchRL's ``PettingZooWrapper`` (and BenchMARL through it) builds its info spec from the infos of
+``reset()`` and keeps only those keys, each a number; with ``flat_infos=True`` every infos dict,
+at reset and at every step, holds the same flat keys ``episode_done`` (1 on the step that ends the
+episode, else 0) and ``episode_<metric>`` for each metric above (the placeholders 0, and
+``NOT_COMPLETED`` / ``NOT_APPLICABLE`` for makespan / deliveries, until the episode ends), and no
+nested ``episode``.
+
 ``JointEnv`` is the same environment as one Gymnasium env (observation [N, D], a
 ``MultiDiscrete([A] * N)`` joint action, the team reward); ``register_gymnasium_envs()`` registers
 it as ``sdhn/<name>-v0`` for every name of :func:`sdhn_sim.envs.registry.env_names`.
@@ -68,12 +75,13 @@ class SdhnParallelEnv(ParallelEnv):
         "name": "sdhn_parallel_v0", "render_modes": ["rgb_array"], "is_parallelizable": True}
 
     def __init__(self, name: str, seed: int = 0, render_mode: str | None = None,
-                 **overrides: Any) -> None:
+                 flat_infos: bool = False, **overrides: Any) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode: got {render_mode!r}; allowed: None, 'rgb_array'")
         self.env = make_single_env(name, seed=seed, **overrides)
         self.name = name
         self.render_mode = render_mode
+        self.flat_infos = flat_infos  # TorchRL/BenchMARL: the same numeric keys every step
         self.possible_agents = [f"robot_{i}" for i in range(self.env.num_robots)]
         self.agents: list[str] = []
         self._obs_space = _obs_space(self.env, (self.env.obs_size,))
@@ -98,7 +106,15 @@ class SdhnParallelEnv(ParallelEnv):
         obs, state = self.env.reset(seed)
         self._state = np.asarray(state, dtype=np.float32)
         self.agents = list(self.possible_agents)
-        return self._split(obs), {a: {} for a in self.agents}
+        return self._split(obs), {a: self._infos(None) for a in self.agents}
+
+    def _infos(self, episode: EpisodeStats | None) -> dict[str, Any]:
+        """One agent's infos: ``{}`` or ``{"episode": ...}``; with flat_infos the flat keys."""
+        if not self.flat_infos:
+            return {} if episode is None else {"episode": episode_info(episode)}
+        metrics = episode_info(episode if episode is not None else PLACEHOLDER)
+        return {"episode_done": int(episode is not None),
+                **{f"episode_{k}": v for k, v in metrics.items() if k != "env_index"}}
 
     def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], ...]:
         if not self.agents:
@@ -115,10 +131,7 @@ class SdhnParallelEnv(ParallelEnv):
         self._state = np.asarray(res.state, dtype=np.float32)
         rewards = _robot_rewards(self.env, res.reward, res.info)
         episode = res.info.get("episode")
-        infos: dict[str, dict[str, Any]] = {a: {} for a in self.agents}
-        if episode is not None:
-            for a in self.agents:
-                infos[a]["episode"] = episode_info(episode)
+        infos = {a: self._infos(episode) for a in self.agents}
         out = (
             self._split(res.obs),
             {a: float(rewards[i]) for i, a in enumerate(self.possible_agents)},
@@ -154,6 +167,11 @@ def check_action(agent: str, value: Any, num_actions: int) -> int:
     if not 0 <= value < num_actions:
         raise ValueError(f"actions[{agent!r}]: {value}; allowed: 0 .. {num_actions - 1}")
     return int(value)
+
+
+# flat_infos' values before an episode has ended (makespan and deliveries: the sentinels)
+PLACEHOLDER = EpisodeStats(env_index=0, episode_return=0.0, length=0, makespan=None,
+                           completed=False, collisions=0, formation_error=0.0)
 
 
 def episode_info(episode: EpisodeStats) -> dict[str, int | float]:

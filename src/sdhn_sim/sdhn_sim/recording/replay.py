@@ -28,6 +28,9 @@
                    team messages, for a recording made with viz:=false (default NEW:
                    <stem>-viz.mcap beside it, never overwritten; the input is never modified). A
                    recording that already has them is reported and left alone (exit 0).
+--recover OUT.mcap rewrite what the recording holds (all of it, or up to the damage a killed
+                   recorder leaves) as a complete rosbag2 MCAP file: summary, index, end magic,
+                   the rosbag2 metadata record (recording.recover); never over an existing file.
 --foxglove         serve the recording's viz channels (the live viz node's) on a Foxglove
                    WebSocket at ws://HOST:PORT (--host 127.0.0.1, --port 8765, 0 = any free port),
                    paced by the recorded log times at --rate X (default 1); playback starts when
@@ -128,6 +131,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="GIF/MP4: draw the latest recorded sampled hypergraph")
     parser.add_argument("--add-viz", action="store_true",
                         help="write a copy with the derived /viz/* channels (--out NEW.mcap)")
+    parser.add_argument("--recover", type=Path, default=None, metavar="OUT.mcap",
+                        help="rewrite what a damaged recording holds (a killed recorder's) as "
+                        "a complete rosbag2 MCAP file that any MCAP reader opens")
     parser.add_argument("--foxglove", action="store_true",
                         help="serve the viz channels on a Foxglove WebSocket (--rate = speed)")
     parser.add_argument("--host", default="127.0.0.1", help="with --foxglove: address to bind")
@@ -164,6 +170,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--out goes with --export-episode K or --add-viz")
     if args.add_viz and args.out is not None and args.out.suffix != ".mcap":
         parser.error(f"--out: {args.out}; allowed with --add-viz: a path ending in .mcap")
+    if args.recover is not None and args.recover.suffix != ".mcap":
+        parser.error(f"--recover: {args.recover}; allowed: a path ending in .mcap")
     if not 0 <= args.port <= 65535:
         parser.error(f"--port: {args.port}; allowed: 0..65535 (0 = any free port)")
     if (args.host != "127.0.0.1" or args.port != 8765 or args.loop) and not args.foxglove:
@@ -207,12 +215,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"replay: error: --out: cannot write {e.filename or args.out}: "
               f"{e.strerror or e}", file=sys.stderr)
         return 2
+    if args.recover is not None:
+        code = max(code, recover_file(rec, args.recover, args.debug))
     if args.foxglove:
         code = max(code, serve_foxglove(rec, args.host, args.port, args.rate or 1.0, args.loop))
     elif args.rate is not None:
         code = max(code, republish(rec, args.rate, args.wait, args.ack_timeout))
     if not (args.summary or args.export_episode is not None or args.rate is not None
-            or args.add_viz or args.foxglove):
+            or args.add_viz or args.foxglove or args.recover is not None):
         for topic, count in sorted(rec.topics().items()):
             print(f"{count:>8}  {topic}")
     if rec.undecodable:
@@ -280,6 +290,34 @@ def export_animation(rec: Recording, args: argparse.Namespace) -> int:
             return 2
         print(f"wrote {path}: episode {anim.episode}, {len(anim.frames)} frames "
               f"({w}x{h}, {args.fps:g} fps{graphs}), {anim.outcome}; {anim.map_note}")
+    return 0
+
+
+def recover_file(rec: Recording, out: Path, debug: bool = False) -> int:
+    """``--recover``: the readable part of ``rec`` as a complete rosbag2 MCAP (recording.recover).
+    """
+    from sdhn_sim.recording.recover import recover
+
+    if not out.parent.is_dir():
+        print(f"replay: error: --recover: {out.parent} is not a directory; allowed: a new .mcap "
+              "file in an existing directory", file=sys.stderr)
+        return 2
+    if out.resolve() == rec.path.resolve():
+        print("replay: error: --recover: the input itself; allowed: a new file",
+              file=sys.stderr)
+        return 2
+    try:
+        done = recover(rec, out)
+    except OSError as e:
+        if debug:
+            raise
+        print(f"replay: error: --recover: cannot write {out}: {e.strerror or e}",
+              file=sys.stderr)
+        return 2
+    state = "damaged" if rec.truncated is not None else "complete"
+    note = "" if done.path == out else f" ({out} exists)"
+    print(f"wrote {done.path}{note}: {done.messages} messages of {done.topics} ROS topics from "
+          f"the {state} {rec.path.name}, with summary, index and rosbag2 metadata")
     return 0
 
 

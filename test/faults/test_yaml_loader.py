@@ -103,3 +103,30 @@ def test_every_yaml_read_in_src_and_scripts_goes_through_the_loader() -> None:
                                      node.attr)):
                 offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} yaml.{node.attr}")
     assert not offenders, offenders
+
+
+def test_a_fifo_is_refused_without_blocking(tmp_path: Path) -> None:
+    """Same class as issue 54's FIFO weights_file: every YAML the project reads (launch
+    configs, suites, training configs, parameters files) went through an open() that blocks on
+    a FIFO until a writer comes."""
+    import os
+    import threading
+
+    fifo = tmp_path / "config.yaml"
+    os.mkfifo(fifo)
+    errors: list[str] = []
+
+    def load() -> None:
+        try:
+            load_yaml(fifo, what="config")
+        except YamlError as e:
+            errors.append(str(e))
+
+    loader = threading.Thread(target=load, daemon=True)
+    loader.start()
+    loader.join(20)
+    if loader.is_alive():
+        with open(fifo, "wb"):  # unblock it so the test process can end
+            pass
+        pytest.fail("load_yaml blocked on a FIFO")
+    assert len(errors) == 1 and "not a regular file" in errors[0], errors

@@ -11,7 +11,8 @@ Refused, each as one :class:`YamlError` line naming ``what`` (and the line where
 - a document whose alias expansion would exceed ``MAX_NODES`` nodes (a "billion laughs" file of
   a few hundred bytes otherwise builds gigabytes of lists), and a recursive alias;
 - a file over ``MAX_BYTES`` (read no further than that), a binary file, malformed YAML, nesting
-  deeper than the parser's recursion allows.
+  deeper than the parser's recursion allows, a path that is not a regular file (a FIFO would
+  block the reader).
 
 Merge keys (``<<: *base``) stay allowed: a key that the mapping itself sets overrides the merged
 one, as YAML specifies; only a key written twice in the same mapping is a duplicate.
@@ -19,6 +20,8 @@ one, as YAML specifies; only a key written twice in the same mapping is a duplic
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -100,6 +103,8 @@ def _expanded_size(root: Node, limit: int) -> int:
 
 def _read(path: Path, what: str, max_bytes: int) -> str:
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block open() for good
+            raise YamlError(f"{what}: not a regular file (a FIFO, socket, device or directory)")
         with open(path, "rb") as f:
             raw = f.read(max_bytes + 1)
     except OSError as e:

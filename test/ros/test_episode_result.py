@@ -5,6 +5,7 @@ launcher's episodes.csv row and the environments' EpisodeStats keep every field 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 
@@ -25,13 +26,17 @@ f32 = st.floats(-1e6, 1e6, width=32)
 def results(draw: st.DrawFn) -> EpisodeResult:
     completed = draw(st.booleans())
     length = draw(st.integers(1, 10_000))
+    failed = draw(st.integers(0, 3))
+    survivors = draw(st.booleans()) if failed else None
     return EpisodeResult(
         env_name=draw(st.sampled_from(["maif-tiny", "maif-10", "rware-3"])),
         episode=draw(u32), length=length, completed=completed,
         makespan=draw(st.integers(1, length)) if completed else None,
         episode_return=draw(f32), collisions=draw(u32), formation_error=draw(f32.map(abs)),
         missed_actions=draw(u32), policy_version=draw(u32),
-        instance_id=draw(st.integers(-1, 2**31 - 1)))
+        instance_id=draw(st.integers(-1, 2**31 - 1)), failed_robots=failed,
+        survivors_completed=survivors,
+        survivors_makespan=draw(st.integers(1, length)) if survivors else None)
 
 
 @given(results())
@@ -39,7 +44,9 @@ def test_message_round_trip_through_cdr(r: EpisodeResult) -> None:
     msg = r.to_message(EpisodeSummary())
     assert msg.makespan == (r.makespan if r.completed else 0), "NC is makespan 0 on the wire"
     back = EpisodeResult.from_message(deserialize_message(serialize_message(msg), EpisodeSummary))
-    assert back == r
+    # the message has no field for robot failure: the events file and episodes.csv carry it
+    assert back == dataclasses.replace(r, failed_robots=0, survivors_completed=None,
+                                       survivors_makespan=None)
 
 
 @given(results())
@@ -66,7 +73,8 @@ def test_csv_row_round_trip(r: EpisodeResult, wall_s: float) -> None:
 
 
 def test_the_csv_row_and_event_of_a_simulator_episode_are_unchanged() -> None:
-    """The on-disk formats as the launcher wrote them before the type existed."""
+    """The on-disk formats as the launcher wrote them before the type existed (the failure
+    columns added after, empty when no robot failed)."""
     ep = EpisodeStats(env_index=3, episode_return=-7.25, length=500, makespan=None,
                       completed=False, collisions=4, formation_error=0.5)
     r = EpisodeResult.from_stats(ep, env_name="maif-10", episode=2, missed_actions=1,
@@ -74,11 +82,13 @@ def test_the_csv_row_and_event_of_a_simulator_episode_are_unchanged() -> None:
     assert r.to_event() == {
         "env_name": "maif-10", "episode": 2, "length": 500, "completed": False,
         "makespan": None, "episode_return": -7.25, "collisions": 4, "formation_error": 0.5,
-        "missed_actions": 1, "policy_version": 7, "instance_id": 12}
+        "missed_actions": 1, "policy_version": 7, "instance_id": 12,
+        "failed_robots": 0, "survivors_completed": None, "survivors_makespan": None}
     assert r.to_csv_row(3.14159) == {
         "episode": 2, "completed": False, "makespan": "NC", "return": "-7.250", "length": 500,
         "collisions": 4, "missed_actions": 1, "policy_version": 7, "instance_id": 12,
-        "wall_s": "3.14"}
+        "wall_s": "3.14", "failed_robots": 0, "survivors_completed": "",
+        "survivors_makespan": ""}
     assert r.to_stats(env_index=3) == ep
 
 
@@ -87,7 +97,9 @@ def test_stats_round_trip_keeps_what_the_environment_knows(r: EpisodeResult) -> 
     back = EpisodeResult.from_stats(r.to_stats(), env_name=r.env_name, episode=r.episode,
                                     missed_actions=r.missed_actions,
                                     policy_version=r.policy_version, instance_id=r.instance_id)
-    assert back == r
+    # robot failure is the condition model's, not the environment's statistics
+    assert back == dataclasses.replace(r, failed_robots=0, survivors_completed=None,
+                                       survivors_makespan=None)
 
 
 def test_makespan_and_completed_must_agree() -> None:

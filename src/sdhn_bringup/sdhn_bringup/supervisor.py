@@ -33,6 +33,14 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
     clock: lockstep | realtime   rate_hz: 10.0   (realtime: the world steps rate_hz times a
                           second with each robot's newest action, never waiting; the actors
                           then act on their newest observation; sdhn_sim.lockstep)
+    conditions: {latency: 1, lost_actions: 0.05, ...}   (deployment conditions the simulator
+                          applies, sdhn_sim.envs.conditions; {} = the ideal world)
+    faults: [{robot: 3, at_step: 40, episode: 0}]   (actor processes SIGKILLed, never restarted,
+                          when the simulator reaches that step; it sends them nothing from that
+                          step on, sdhn_sim.faults)
+    fail_after_missed: 0  (a robot silent this many steps in a row fails: stays as an obstacle,
+                          its goal dropped, survivors' success in episodes.csv; 0 = never;
+                          faults need >= 1)
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
     recorder: {format: mcap | bag}   (true = mcap: <run_dir>/recording.mcap, one bare MCAP file;
                           bag: <run_dir>/recording/, a rosbag2 bag directory with
@@ -89,8 +97,10 @@ from typing import IO, Any
 import yaml
 
 from sdhn_sim.data_files import fastdds_profile
+from sdhn_sim.envs.conditions import ConditionsError, conditions_from_dict
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names, team_size
 from sdhn_sim.episode import CSV_FIELDS, EpisodeResult
+from sdhn_sim.faults import FaultsError, faults_text, parse_faults
 from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.lockstep import CLOCKS
 from sdhn_sim.overrides import OverrideError, set_field
@@ -137,6 +147,9 @@ class LaunchConfig:
     step_deadline: float = 1.0
     clock: str = "lockstep"  # lockstep | realtime (the simulator's clock, sdhn_sim.lockstep)
     rate_hz: float = 10.0  # realtime: world steps per second
+    conditions: dict[str, Any] = field(default_factory=dict)  # sdhn_sim.envs.conditions fields
+    faults: list[dict[str, Any]] = field(default_factory=list)  # sdhn_sim.faults entries
+    fail_after_missed: int = 0  # silent steps in a row before a robot fails; 0 = never
     max_steps: int = 0  # 0 = the environment's default
     instance: int = -1
     run_dir: str = ""  # "" = runs/<mode>-<env>-<time>
@@ -259,6 +272,14 @@ def validate(cfg: LaunchConfig) -> None:
     if not (isinstance(cfg.rate_hz, int | float) and 0 < cfg.rate_hz <= 1000):
         raise LaunchConfigError(f"rate_hz: got {cfg.rate_hz!r}; allowed: steps per second in "
                                 "(0, 1000]")
+    try:
+        conditions_from_dict(cfg.conditions, n, maif=cfg.env.startswith("maif"))
+        faults = parse_faults(cfg.faults, n, cfg.episodes)
+    except (ConditionsError, FaultsError) as e:
+        raise LaunchConfigError(str(e)) from None
+    if cfg.fail_after_missed < 0 or (faults and cfg.fail_after_missed == 0):
+        raise LaunchConfigError(f"fail_after_missed: got {cfg.fail_after_missed}; allowed: 0 "
+                                "(never) or silent steps >= 1 (faults need >= 1, e.g. 3)")
     for name in ("step_deadline", "start_timeout", "stop_timeout", "status_interval"):
         if not getattr(cfg, name) > 0:
             raise LaunchConfigError(f"{name}: must be > 0 seconds, got {getattr(cfg, name)}")
@@ -393,6 +414,17 @@ def recording_path(cfg: LaunchConfig, run: Path) -> Path:
     return run / ("recording" if cfg.recorder_format == "bag" else "recording.mcap")
 
 
+def set_block(cfg: LaunchConfig, key: str, value: Any) -> None:
+    """The ``conditions`` mapping or the ``faults`` list, whole (checked by ``validate``)."""
+    want = dict if key == "conditions" else list
+    if value in (None, ""):
+        value = want()
+    if not isinstance(value, want):
+        raise LaunchConfigError(f"{key}: expected a {'mapping' if want is dict else 'list'}, "
+                                f"got {value!r}")
+    setattr(cfg, key, value)
+
+
 def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
     cfg = LaunchConfig()
     if path is not None:
@@ -410,6 +442,8 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
                 cfg.hosts.update({str(hk): str(hv) for hk, hv in v.items()})
             elif str(k) == "recorder":
                 set_recorder(cfg, v)
+            elif str(k) in ("conditions", "faults"):
+                set_block(cfg, str(k), v)
             elif str(k) == "trainer":
                 if not isinstance(v, dict):
                     raise LaunchConfigError(f"trainer: expected a mapping, got {v!r}")
@@ -428,6 +462,10 @@ def load_config(path: Path | None, overrides: list[str]) -> LaunchConfig:
             parsed = value  # not YAML: the text itself, checked by the field's type
         if key.strip().startswith("hosts."):
             cfg.hosts[key.strip().removeprefix("hosts.")] = str(parsed)
+        elif key.strip() in ("conditions", "faults"):
+            set_block(cfg, key.strip(), parsed)
+        elif key.strip().startswith("conditions."):
+            cfg.conditions[key.strip().removeprefix("conditions.")] = parsed
         elif key.strip().startswith("trainer."):
             set_trainer(cfg, key.strip().removeprefix("trainer."), parsed)
         elif key.strip() == "recorder" or key.strip().startswith("recorder."):
@@ -473,7 +511,11 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
         "step_deadline": float(cfg.step_deadline), "instance": cfg.instance,
         "start_timeout": float(cfg.start_timeout), "max_steps": cfg.max_steps,
         "extra_subscribers": extra, "events_file": str(status_dir(run) / SIM_EVENTS),
-        "clock": cfg.clock, "rate_hz": float(cfg.rate_hz)}
+        "clock": cfg.clock, "rate_hz": float(cfg.rate_hz),
+        "conditions": yaml.safe_dump(cfg.conditions, default_flow_style=True).strip()
+        if cfg.conditions else "",
+        "faults": faults_text(parse_faults(cfg.faults, cfg.robots, cfg.episodes)),
+        "fail_after_missed": cfg.fail_after_missed}
     for i in range(cfg.robots):
         nodes[actor_node(ns, i)] = {
             "team_ns": ns, "robot_id": i, "num_robots": cfg.robots,
@@ -678,6 +720,7 @@ class Child:
         self.proc: subprocess.Popen[bytes] | None = None
         self.log: IO[bytes] | None = None
         self.exit_code: int | None = None
+        self.faulted = False  # killed by the fault schedule: expected, never restarted
         # managed: the transition asked for and its reply; "" until asked, "active" once there
         self.lifecycle = ""
         self.lifecycle_reply: Any = None
@@ -842,6 +885,13 @@ class Launcher:
             kind = event["event"]
             if kind == "started":
                 self.t_steps0 = time.monotonic()
+            elif kind == "fault":
+                self.kill_for_fault(int(event["robot"]), int(event["episode"]),
+                                    int(event["step"]))
+            elif kind == "robot_failed":
+                self.say(f"robot {event['robot']} failed (silent since episode "
+                         f"{event['episode']} step {event['since_step']}): an obstacle from "
+                         "there on, its goal dropped")
             elif kind == "progress":
                 self.position = (int(event["episode"]), int(event["step"]))
                 self.step_rate = float(event["steps_per_s"])
@@ -858,6 +908,15 @@ class Launcher:
                 self.say(f"episode {row['episode']}: {outcome}, makespan {row['makespan']}, "
                          f"return {row['return']}, length {row['length']}, missed "
                          f"{row['missed_actions']}, weights v{row['policy_version']}")
+
+    def kill_for_fault(self, robot: int, episode: int, step: int) -> None:
+        """The fault schedule: SIGKILL the robot's actor, never to restart it."""
+        child = next(c for c in self.children if c.spec.name == f"actor_{robot}")
+        child.faulted = True
+        pid = child.proc.pid if child.proc else "?"
+        child.signal(signal.SIGKILL)
+        self.say(f"fault schedule: killed actor_{robot} (pid {pid}) at episode {episode} step "
+                 f"{step}; not restarted")
 
     def _append_csv(self, row: dict[str, Any]) -> None:
         path = self.run_dir / "episodes.csv"
@@ -945,6 +1004,9 @@ class Launcher:
             if code is None:
                 continue
             name = child.spec.name
+            if child.faulted:
+                self.say(f"{name} ended: {describe_exit(code)} (fault schedule)")
+                continue
             if child.spec.essential and code == 0:
                 self.say(f"{name} finished ({describe_exit(code)})")
                 return True
@@ -1028,7 +1090,8 @@ class Launcher:
             self.lifecycle.close()
             self.lifecycle = None
         codes = {c.spec.name: c.exit_code for c in self.children if c.proc is not None}
-        bad = sorted(set(self.failed) | {n for n, c in codes.items() if c != 0})
+        faulted = {c.spec.name for c in self.children if c.faulted}
+        bad = sorted(set(self.failed) | {n for n, c in codes.items() if c != 0} - faulted)
         summary = ", ".join(f"{n}={describe_exit(c)}" for n, c in codes.items())
         self.say(f"exit codes: {summary}")
         restarts = {c.spec.name: c.restarts for c in self.children if c.restarts}

@@ -28,7 +28,8 @@ from sdhn_sim.envs.api import EpisodeStats
 
 # episodes.csv: the outcome first (completed, makespan), the return second, then the rest.
 CSV_FIELDS = ["episode", "completed", "makespan", "return", "length", "collisions",
-              "missed_actions", "policy_version", "instance_id", "wall_s"]
+              "missed_actions", "policy_version", "instance_id", "wall_s", "failed_robots",
+              "survivors_completed", "survivors_makespan"]
 NOT_COMPLETED = "NC"  # how the CSV row and the logs write a makespan of an uncompleted episode
 
 Msg = TypeVar("Msg")
@@ -51,11 +52,23 @@ class EpisodeResult:
     missed_actions: int  # actions that missed the deadline and became 'stay'
     policy_version: int  # newest policy version seen in this episode's actions
     instance_id: int = -1  # MAIF instance played; -1 without numbered instances (RWARE, old)
+    # Robot failure (sdhn_sim.envs.conditions: drawn, or a silent robot over ROS): robots failed
+    # by the end, and the survivors' success (every robot not failed on its goal; the failed
+    # robots' goals dropped) with its makespan. Without a failure they equal the team's.
+    # EpisodeSummary has no field for them: the events file and episodes.csv carry them.
+    failed_robots: int = 0
+    survivors_completed: bool | None = None  # None = as ``completed`` (no failure known)
+    survivors_makespan: int | None = None
 
     def __post_init__(self) -> None:
         if self.completed != (self.makespan is not None):
             raise ValueError(f"episode {self.episode}: makespan {self.makespan} disagrees with "
                              f"completed={self.completed} (a makespan only when completed)")
+
+    @property
+    def survivors_success(self) -> bool:
+        """The survivors' success (the team's when no robot failed)."""
+        return self.completed if self.survivors_completed is None else self.survivors_completed
 
     @property
     def makespan_text(self) -> str:
@@ -130,7 +143,10 @@ class EpisodeResult:
                    formation_error=None if formation is None else float(formation),
                    missed_actions=int(event.get("missed_actions", 0)),
                    policy_version=int(event.get("policy_version", 0)),
-                   instance_id=int(event.get("instance_id", -1)))
+                   instance_id=int(event.get("instance_id", -1)),
+                   failed_robots=int(event.get("failed_robots") or 0),
+                   survivors_completed=_opt_bool(event.get("survivors_completed")),
+                   survivors_makespan=_opt_int(event.get("survivors_makespan")))
 
     # --- episodes.csv -------------------------------------------------------------------------
 
@@ -141,7 +157,13 @@ class EpisodeResult:
                 "length": self.length,
                 "collisions": self.collisions if self.collisions is not None else "",
                 "missed_actions": self.missed_actions, "policy_version": self.policy_version,
-                "instance_id": self.instance_id, "wall_s": f"{wall_s:.2f}"}
+                "instance_id": self.instance_id, "wall_s": f"{wall_s:.2f}",
+                # empty where no failure is known (the survivors' figures are the team's)
+                "failed_robots": self.failed_robots,
+                "survivors_completed": "" if self.survivors_completed is None
+                else self.survivors_completed,
+                "survivors_makespan": "" if self.survivors_completed is None
+                else self.survivors_makespan or NOT_COMPLETED}
 
     @classmethod
     def from_csv_row(cls, row: Mapping[str, str], env_name: str = "") -> EpisodeResult:
@@ -156,4 +178,21 @@ class EpisodeResult:
                    collisions=int(collisions) if collisions else None, formation_error=None,
                    missed_actions=int(row.get("missed_actions") or 0),
                    policy_version=int(row.get("policy_version") or 0),
-                   instance_id=int(row.get("instance_id") or -1))
+                   instance_id=int(row.get("instance_id") or -1),
+                   failed_robots=int(row.get("failed_robots") or 0),
+                   survivors_completed=_opt_bool(row.get("survivors_completed")),
+                   survivors_makespan=_opt_int(row.get("survivors_makespan")))
+
+
+def _opt_bool(v: Any) -> bool | None:
+    if v is None or v == "":
+        return None
+    if isinstance(v, str):
+        return v.strip().lower() in ("true", "1", "yes")
+    return bool(v)
+
+
+def _opt_int(v: Any) -> int | None:
+    if v is None or v in ("", NOT_COMPLETED):
+        return None
+    return int(v)

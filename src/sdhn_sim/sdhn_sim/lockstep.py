@@ -31,10 +31,22 @@ is counted: the current step minus the step of the observation it answers (0 = a
 k = what the in-process k-step observation latency gives). Why apply once rather than repeat the
 last action: a MAIF or RWARE action is one discrete move, so repeating it would be a move the
 policy never chose.
+
+Silent robots (``fail_after_missed`` > 0): a robot that has not answered that many steps in a row
+(lock-step: deadline misses; realtime: ticks without a new action) is declared failed, by the
+condition model's definition: from its first silent step on (the failure is dated back there,
+as it has stood still since) it stays on the grid as an obstacle and its goal is dropped, the
+episode ends at the survivors' success (also when the survivors all stood on their goals during
+the silent steps before the declaration: the outcome is dated to that step, as in process), and
+lock-step no longer waits for it. It stays failed in the following episodes (from their step 0)
+until it answers again. ``faults`` (:mod:`sdhn_sim.faults`) cuts a robot's observations from a
+scheduled step on (the launcher kills its process then); :meth:`LockstepSim.take_events` hands
+the node each cut and each declared failure for its events file.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -56,6 +68,7 @@ from sdhn_sim.envs.maif import MaifEnv
 from sdhn_sim.envs.registry import env_names, team_size
 from sdhn_sim.envs.single import SingleEnv
 from sdhn_sim.episode import EpisodeResult
+from sdhn_sim.faults import Fault, FaultsError, parse_faults
 
 STAY = 0
 CLOCKS = ("lockstep", "realtime")
@@ -78,6 +91,8 @@ class SimConfig:
     extra_subscribers: int = 0  # other nodes (trainer, recorder) to wait for before step 0
     conditions: Conditions = field(default_factory=Conditions)  # the default: the ideal world
     clock: str = "lockstep"  # lockstep: wait for all N actions; realtime: step at rate_hz
+    fail_after_missed: int = 0  # a robot silent for this many steps in a row fails; 0 = never
+    faults: tuple[Fault, ...] = ()  # robots whose observations stop at a step (sdhn_sim.faults)
     rate_hz: float = 10.0  # realtime: world steps per second
 
     def validate(self) -> None:
@@ -117,6 +132,13 @@ class SimConfig:
         if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 1000):
             raise SimConfigError(f"rate_hz: got {self.rate_hz}; allowed: steps per second in "
                                  "(0, 1000]")
+        if self.fail_after_missed < 0:
+            raise SimConfigError(f"fail_after_missed: got {self.fail_after_missed}; allowed: 0 "
+                                 "(never) or a number of steps >= 1")
+        try:
+            parse_faults([f.to_dict() for f in self.faults], team_size(self.env), self.episodes)
+        except FaultsError as e:
+            raise SimConfigError(str(e)) from e
 
     @staticmethod
     def parse_conditions(block: Any) -> Conditions:
@@ -202,6 +224,16 @@ class LockstepSim:
         self._answers = np.full(self.num_robots, -1, dtype=np.int64)
         self.staleness = RealtimeCounts()  # since start
         self.ep_staleness = RealtimeCounts()  # this episode
+        # silent robots: steps in a row without an answer; declared failed (kept across episodes
+        # while silent); answered again while failed (revived at the next episode)
+        self._silent = np.zeros(self.num_robots, dtype=np.int64)
+        self.dead = np.zeros(self.num_robots, dtype=bool)
+        self._revived = np.zeros(self.num_robots, dtype=bool)
+        self.cut = np.zeros(self.num_robots, dtype=bool)  # observations withheld (faults)
+        self._pending_faults = list(cfg.faults)
+        self._on_goal: list[npt.NDArray[np.bool_]] = []  # per step of the episode (MAIF)
+        self._events: list[dict[str, Any]] = []
+        self.ros_failures = 0  # robots declared failed for silence, since start
 
     @property
     def finished(self) -> bool:
@@ -222,6 +254,12 @@ class LockstepSim:
         self.ep_staleness = RealtimeCounts()
         self.instance_id = self.env.instance_id
         self.conditions.start([0], obs[None])
+        self.dead &= ~self._revived
+        self._revived[:] = False
+        for r in np.flatnonzero(self.dead).tolist():  # still silent: failed from step 0
+            self.conditions.fail(0, r, 0)
+        self._on_goal = [self._goal_mask()]
+        self._cut_due()
         seen = self.conditions.observe(obs[None])[0]
         self.frame = Frame(self.episode, 0, seen, state, _positions(self.env), self.instance_id,
                            0.0, False, False, 0, self.conditions.obs_age[0].copy())
@@ -230,6 +268,57 @@ class LockstepSim:
     def _clear(self) -> None:
         self._actions[:] = STAY
         self._got[:] = False
+
+    def _goal_mask(self) -> npt.NDArray[np.bool_]:
+        if not self._maif:
+            return np.zeros(self.num_robots, dtype=bool)
+        return np.asarray(np.all(np.asarray(self.env.positions) == np.asarray(self.env.goals),
+                                 axis=1))
+
+    def _cut_due(self) -> None:
+        """Cut the observations of the robots whose scheduled fault is due at this step."""
+        while self._pending_faults and (self._pending_faults[0].episode,
+                                        self._pending_faults[0].at_step) <= (self.episode,
+                                                                             self.step):
+            f = self._pending_faults.pop(0)
+            self.cut[f.robot] = True
+            self._events.append({"event": "fault", "robot": f.robot, "episode": self.episode,
+                                 "step": self.step, "scheduled": f.to_dict()})
+
+    def take_events(self) -> list[dict[str, Any]]:
+        """Faults cut and robots declared failed since the last call (for the events file)."""
+        out, self._events = self._events, []
+        return out
+
+    def _declare_silent(self) -> None:
+        """Robots silent for ``fail_after_missed`` steps in a row fail from their first silent
+        step (before this step's actions are applied)."""
+        k = self.cfg.fail_after_missed
+        expected = ~self.conditions.failed[0]
+        self._silent[self._got] = 0
+        self._silent[~self._got & expected] += 1
+        if k <= 0:
+            return
+        for r in np.flatnonzero((self._silent >= k) & expected & ~self.dead).tolist():
+            since = max(0, self.step - int(self._silent[r]) + 1)
+            self.conditions.fail(0, r, since)
+            self.dead[r] = True
+            self.ros_failures += 1
+            self._events.append({"event": "robot_failed", "robot": r, "episode": self.episode,
+                                 "since_step": since, "declared_step": self.step,
+                                 "silent_steps": int(self._silent[r])})
+
+    def _survivors_since(self, before: int) -> int | None:
+        """The first past step (> the earliest backdated failure, < ``before``) at which every
+        robot not failed by then stood on its goal: the survivors' success that a backdated
+        failure reveals (None if none)."""
+        fail_step = self.conditions.fail_step[0]
+        first = int(fail_step.min()) + 1
+        for t in range(max(first, 1), before):
+            failed = fail_step <= t - 1
+            if not failed.all() and bool(np.all(self._on_goal[t] | failed)):
+                return t
+        return None
 
     def submit(self, robot_id: int, episode: int, step: int, action: int,
                version: int) -> DropKind | None:
@@ -242,6 +331,8 @@ class LockstepSim:
             return DropKind.STALE_STEP
         if (episode, step) > (self.episode, self.step):
             return DropKind.FUTURE_STEP
+        if self.dead[robot_id]:
+            self._revived[robot_id] = True  # it answers again: alive from the next episode
         if self._got[robot_id]:
             return DropKind.DUPLICATE_ACTION
         if not 0 <= action < self.num_actions:
@@ -264,6 +355,8 @@ class LockstepSim:
             return DropKind.FUTURE_STEP
         if not 0 <= action < self.num_actions:
             return DropKind.ACTION_OUT_OF_RANGE
+        if self.dead[robot_id]:
+            self._revived[robot_id] = True
         if self._got[robot_id]:  # a newer answer before the tick: the pending one never runs
             self.staleness.superseded += 1
             self.ep_staleness.superseded += 1
@@ -276,16 +369,19 @@ class LockstepSim:
     @property
     def complete(self) -> bool:
         """Every robot's action for the current step is in (realtime: every robot has one
-        pending, whichever step it answers)."""
-        return bool(self._got.all())
+        pending, whichever step it answers); robots declared failed are not waited for."""
+        return bool((self._got | self.dead).all())
 
     def missing(self) -> list[int]:
-        return [int(i) for i in np.flatnonzero(~self._got)]
+        return [int(i) for i in np.flatnonzero(~self._got & ~self.dead)]
 
     def advance(self) -> tuple[Frame, EpisodeResult | None]:
         """Step the world with the actions in (missing -> stay); returns the next frame and, when
         the episode ended, its result (call :meth:`reset` for the next one)."""
-        missed = int((~self._got).sum())
+        backdated = self.ros_failures
+        self._declare_silent()
+        backdated = self.ros_failures > backdated
+        missed = int((~self._got & ~self.dead).sum())  # a failed robot is no longer expected
         self._ep_missed += missed
         self.total_missed += missed
         if self.cfg.realtime:
@@ -301,8 +397,11 @@ class LockstepSim:
         if "robot_collisions" in res.info:
             self._ep_collisions += int(np.sum(res.info["robot_collisions"]))
         stats: EpisodeStats | None = res.info.get("episode")
-        survivors = self._maif and self.cfg.conditions.failures > 0 and bool(
-            np.all(np.all(self.env.positions == self.env.goals, axis=1) | failed))
+        on_goal = self._goal_mask()
+        self._on_goal.append(on_goal)
+        survivors_at = (self._survivors_since(self.step) if backdated and self._maif else None)
+        survivors = self._maif and bool(failed.any()) and not failed.all() and (
+            survivors_at is not None or bool(np.all(on_goal | failed)))
         done = res.terminated or res.truncated or survivors
         obs, age = res.obs, None
         if not done:
@@ -322,13 +421,18 @@ class LockstepSim:
                 env_index=0, episode=int(self.conditions.episode[0]), completed=stats.completed,
                 makespan=stats.makespan, survivors_completed=stats.completed or survivors,
                 survivors_makespan=stats.makespan if stats.completed
-                else self.step if survivors else None,
+                else (survivors_at or self.step) if survivors else None,
                 failed=int(failed.sum()), length=self.step, deliveries=stats.deliveries,
                 stats=stats)
-            result = EpisodeResult.from_stats(
+            result = dataclasses.replace(EpisodeResult.from_stats(
                 stats, env_name=self.cfg.env, episode=self.episode,
                 missed_actions=self._ep_missed, policy_version=self._ep_version,
-                instance_id=self.instance_id)
+                instance_id=self.instance_id),
+                failed_robots=self.last_outcome.failed,
+                survivors_completed=self.last_outcome.survivors_completed,
+                survivors_makespan=self.last_outcome.survivors_makespan)
+        else:
+            self._cut_due()
         return self.frame, result
 
 

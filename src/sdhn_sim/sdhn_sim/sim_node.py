@@ -45,8 +45,9 @@ from rclpy.timer import Timer
 from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
 from sdhn_sim.diagnostics import Report, WindowCounts, drop_values, make_report
 from sdhn_sim.drops import DropKind
-from sdhn_sim.envs.registry import env_names
+from sdhn_sim.envs.registry import env_names, team_size
 from sdhn_sim.episode import EpisodeResult
+from sdhn_sim.faults import FaultsError, parse_faults
 from sdhn_sim.lockstep import Frame, LockstepSim, SimConfig, SimConfigError
 from sdhn_sim.poses import FRAME_ID, cell_center
 from sdhn_sim.ros import cdr, topics
@@ -79,6 +80,12 @@ PARAMETERS = {
                                  "realtime: step rate_hz times a second with the newest actions, "
                                  "never waiting")),
     "rate_hz": (10.0, floating("realtime: world steps per second", 0.001, 1000.0)),
+    "fail_after_missed": (0, integer("a robot that has not answered this many steps in a row "
+                                     "fails (stays as an obstacle, its goal dropped, "
+                                     "sdhn_sim.envs.conditions); 0 = never", 0)),
+    "faults": ("", string("fault schedule: YAML list of {robot, at_step[, episode]} whose "
+                          "observations stop at that step (the launcher kills the actor); "
+                          "'' = none (sdhn_sim.faults)")),
 }
 
 
@@ -87,6 +94,11 @@ def sim_config(p: dict[str, Any]) -> SimConfig:
     ``conditions`` text is parsed here (SimConfigError naming the bad field)."""
     values = {k: v for k, v in p.items() if k in SimConfig.__dataclass_fields__}
     values["conditions"] = SimConfig.parse_conditions(p.get("conditions", ""))
+    try:
+        values["faults"] = parse_faults(p.get("faults", ""), team_size(str(p["env"])),
+                                        int(p.get("episodes", 0)))
+    except (FaultsError, ValueError, KeyError) as e:
+        raise SimConfigError(f"faults: {e}" if not isinstance(e, FaultsError) else str(e)) from e
     return SimConfig(**values)
 
 
@@ -229,7 +241,8 @@ class SimNode(Node):
         assert frame is not None
         stamp = self.get_clock().now().to_msg()
         for i in silent:
-            self.obs_pubs[i].publish(self.observation(frame, i, stamp))
+            if not self.sim.cut[i]:
+                self.obs_pubs[i].publish(self.observation(frame, i, stamp))
         self.get_logger().info(f"first step: no answer yet from robots {silent}; re-sent")
         self.deadline = time.monotonic() + self.cfg.step_deadline
 
@@ -269,9 +282,11 @@ class SimNode(Node):
 
     def publish(self, f: Frame) -> None:
         self.stepping = True
+        self.write_sim_events()
         stamp = self.get_clock().now().to_msg()
         for i, pub in enumerate(self.obs_pubs):
-            pub.publish(self.observation(f, i, stamp))
+            if not self.sim.cut[i]:  # a scheduled fault: this robot is sent nothing more
+                pub.publish(self.observation(f, i, stamp))
         # TeamState is for observers (trainer, recorder, viz); a deployment without them has no
         # reader of it. A volatile message goes only to readers matched at publish time, so
         # skipping it while none is matched changes nothing a subscriber can see, and saves
@@ -316,6 +331,13 @@ class SimNode(Node):
             "missed_fraction_in_window": d_missed / robot_steps if robot_steps else 0.0,
         }
         values["clock"] = self.cfg.clock
+        # the deployment conditions and what they did since start (sdhn_sim.envs.conditions),
+        # and the robots failed for silence over ROS (killed actors, fault schedule)
+        values["conditions"] = self.cfg.conditions.label()
+        values |= {f"conditions/{k}": v for k, v in self.sim.conditions.counts.items()}
+        values |= {"failed_robots_now": int(self.sim.conditions.failed[0].sum()),
+                   "silent_robots_failed": self.sim.ros_failures,
+                   "fault_cuts": int(self.sim.cut.sum())}
         if self.cfg.realtime:
             rt = self.sim.staleness
             values |= {"rate_hz": self.cfg.rate_hz, "late_ticks": self.late_ticks,
@@ -347,6 +369,20 @@ class SimNode(Node):
             f"episode {r.episode} done: makespan={r.makespan_text} length={r.length} "
             f"return={r.episode_return:.2f} collisions={r.collisions} missed={r.missed_actions} "
             f"policy_version={r.policy_version}")
+
+    def write_sim_events(self) -> None:
+        """The core's fault cuts and silent-robot failures, as events and log lines."""
+        for e in self.sim.take_events():
+            self.events.write(e.pop("event"), **e)
+            if "since_step" in e:
+                self.get_logger().warning(
+                    f"robot {e['robot']} failed: silent for {e['silent_steps']} steps since "
+                    f"episode {e['episode']} step {e['since_step']} (stays as an obstacle, its "
+                    "goal dropped)")
+            else:
+                self.get_logger().warning(
+                    f"fault schedule: robot {e['robot']} is sent no more observations from "
+                    f"episode {e['episode']} step {e['step']} (its actor is to be killed)")
 
     def realtime_event(self, total: bool = False) -> dict[str, Any]:
         """The realtime counts an episode event (or, ``total``, the stop event) carries."""

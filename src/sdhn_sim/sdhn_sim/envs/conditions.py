@@ -294,6 +294,16 @@ class ConditionModel:
             np.put_along_axis(rows_f, pick, at.astype(np.int64), axis=1)
             self.fail_step[e] = rows_f
 
+    def fail(self, env: int, robot: int, since: int) -> None:
+        """Fail ``robot`` of ``env`` from step ``since`` of its current episode on, outside the
+        model's own draws (the ROS simulator's silent robots, sdhn_sim.lockstep): from then it
+        is a failed robot like a drawn one (stays, an obstacle, its goal dropped)."""
+        if since < self.fail_step[env, robot]:
+            if since < self.t[env]:  # a step act() has passed: it would never count it
+                self.counts["failed_robots"] += 1
+            self.fail_step[env, robot] = since
+        self._ideal = False
+
     def observe(self, raw_obs: FloatArray) -> FloatArray:
         """Record this step's raw observations [B, N, D]; return what the robots see."""
         if self._hist is None:
@@ -435,7 +445,7 @@ class ConditionedEnv:
         res = self.inner_env.step(applied)
         self.outcomes = []
         done = {ep.env_index: ep for ep in res.episodes}
-        if self._maif and self.conditions.failures:
+        if self._maif and (self.conditions.failures or failed.any()):  # drawn or fail()ed
             self._survivors(failed, done)
         for e, ep in done.items():
             if not self._taken[e]:

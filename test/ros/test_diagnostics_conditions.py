@@ -1,0 +1,69 @@
+"""What the simulator's /diagnostics says about the world it runs (real processes: simulator on
+the realtime clock under a lost-action condition with a fault schedule, 4 actor processes): the
+clock mode, the active conditions and their counts, the staleness counts, and the robot its
+silence failed. Counts and labels only, never timing."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from sdhn_sim.ros import topics
+
+from .deploy_helpers import actor_cmd, sim_cmd, stop_all
+from .processes import node_processes
+
+N, NS = 4, "/sdhn_diag_cond"
+
+
+def test_diagnostics_report_the_clock_conditions_and_failed_robots(weights: Path) -> None:
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from sdhn_sim.ros.qos import DIAGNOSTICS
+
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("test_diag_conditions", context=context)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(node)
+    last: dict[str, dict[str, str]] = {}
+
+    def on_diag(m: Any) -> None:
+        for s in m.status:
+            last[s.name] = {kv.key: kv.value for kv in s.values}
+
+    node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diag, DIAGNOSTICS)
+    cmds = [sim_cmd(ns=NS, episodes=0, max_steps=40, seed=5, clock="realtime", rate_hz=20.0,
+                    conditions="'{lost_actions: 0.2}'", fail_after_missed=3,
+                    faults="'[{robot: 3, at_step: 5}]'"),
+            *(actor_cmd(i, N, NS, weights_file=weights, realtime=True) for i in range(N))]
+    sim_name = f"{NS}/sim"
+
+    def enough() -> bool:
+        v = last.get(sim_name, {})
+        return v.get("silent_robots_failed") == "1" and int(v.get("steps", "0")) >= 30
+
+    try:
+        with node_processes(*cmds) as procs:
+            end = time.monotonic() + 90
+            while time.monotonic() < end and not enough():
+                ex.spin_once(timeout_sec=0.05)
+            assert enough(), (last.get(sim_name), [p.output[-2000:] for p in procs])
+            stop_all(procs)
+    finally:
+        ex.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    v = last[sim_name]
+    assert v["clock"] == "realtime" and float(v["rate_hz"]) == 20.0
+    assert v["conditions"] == "lost_actions=0.2"
+    assert int(v["conditions/lost_actions"]) > 0 and int(v["conditions/steps"]) >= 30
+    assert v["fault_cuts"] == "1" and int(v["failed_robots_now"]) >= 1
+    # every applied action was counted by its staleness
+    assert sum(int(x) for k, x in v.items() if k.startswith("staleness/")) > 0
+    assert "stale_actions" in v and "late_ticks" in v
+    assert "skipped_steps" in last[f"{NS}/robot_0/actor"]

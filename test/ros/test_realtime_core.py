@@ -96,3 +96,11 @@ def test_actor_core_skips_ahead_only_in_realtime() -> None:
     # skipping ahead never takes the past: step 2 after step 3
     out = core.on_obs(0, 2, 0, 4, obs)
     assert isinstance(out, Drop) and out.kind == DropKind.STALE_STEP
+    # a new episode whose step 0 was skipped (depth-1 subscription): taken, the GRU reset
+    core.hidden = np.ones_like(core.hidden)
+    assert isinstance(core.on_obs(1, 2, 0, 4, obs), Decision)
+    assert core.episode == 1 and core.last_step == 2 and core.skipped == 4
+    fresh = ActorCore(0, 4, greedy=True, seed=0)
+    offer(fresh, blob(1))
+    fresh.on_obs(1, 0, 0, 4, obs)
+    assert core.hidden is not None and np.array_equal(core.hidden, fresh.hidden)

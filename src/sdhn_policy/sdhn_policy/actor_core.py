@@ -236,15 +236,16 @@ class ActorCore:
         the real next steps look stale. An actor that has answered nothing yet (just started or
         restarted mid-episode) takes whatever comes. Step 0 is always taken: a simulator
         restarted in episode 0 sends (0, 0) again, which a replayed step 0 cannot be told from.
-        With ``skip_ahead`` (the realtime clock) a later step of the same episode is taken too;
-        a later episode already is (it resets the GRU state)."""
+        With ``skip_ahead`` (the realtime clock) a later step of the same episode is taken too,
+        and any step of a later episode (its step 0 may have been skipped; the GRU state is reset
+        as at step 0)."""
         if self.episode is None or self.last_step is None or step == 0:
             return None
         if (episode, step) <= (self.episode, self.last_step):
             return Drop(DropKind.STALE_STEP, f"episode {episode} step {step} is not after the last "
                         f"answered episode {self.episode} step {self.last_step}")
-        if self.skip_ahead and episode == self.episode:
-            self.skipped += step - self.last_step - 1
+        if self.skip_ahead:  # a later step of this episode, or any step of a later one
+            self.skipped += step - self.last_step - 1 if episode == self.episode else step
             return None
         if episode != self.episode or step > self.last_step + 1:
             return Drop(DropKind.FUTURE_STEP, f"episode {episode} step {step} skips ahead of the "

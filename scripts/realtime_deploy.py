@@ -14,9 +14,17 @@ that rate, one actor process per robot, no recorder, ``--episodes`` episodes fro
 over completed episodes (mean, 95 % t interval), the staleness of the applied actions (fraction
 at 0, 1, 2+ steps; mean), robot-steps without a new action (missed) and superseded actions, the
 ticks the timer ran late, the achieved step rate, and the load average over the run. Each run's
-episodes (instance, outcome, staleness) go into the JSON, for the in-process comparison under the
-latency condition that matches the measured staleness (``--inprocess``, once
-``sdhn_sim.envs.conditions`` is available).
+episodes (instance, outcome, staleness) go into the JSON.
+
+``--inprocess`` then plays the same policy in the same deployment mode in process
+(``sdhn_sim.envs.conditions.ConditionedEnv``) on every instance of the set the simulator draws
+from (MAIF "train", 100 instances, one episode each, the same step limit) under the condition that
+matches each run's measurement: observation latency = its mean staleness rounded (the staleness
+the policy saw), lost actions = its missed fraction (a robot-step without a new action stays, as
+a lost action does); and under the ideal world for reference. It prints whether the ROS figures
+lie in the in-process intervals.
+
+    .venv/bin/python scripts/realtime_deploy.py --inprocess docs/results/realtime-deploy.json
 """
 
 from __future__ import annotations
@@ -117,6 +125,89 @@ def run_one(config: str, rate: float, args: argparse.Namespace
     return run_dir, time.monotonic() - t0, (load0, os.getloadavg()[0]), code
 
 
+def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
+                    seed: int = 0) -> dict[str, Any]:
+    """One episode per instance of the "train" set under ``cond_block``, in the config's
+    deployment mode; success and makespan with 95 % intervals."""
+    import yaml
+
+    from sdhn_bringup.supervisor import resolve_weights
+    from sdhn_policy.actor_runtime import ActorRuntime
+    from sdhn_policy.stall_breaker import StallBreaker, StallRule
+    from sdhn_sim.envs import make_env
+    from sdhn_sim.envs.conditions import ConditionedEnv, conditions_from_dict
+
+    cfg = yaml.safe_load((ROOT / config).read_text())
+    rt = ActorRuntime.from_file(resolve_weights(str(ROOT / cfg["weights"])))
+    greedy, temperature = bool(cfg.get("greedy", True)), float(cfg.get("temperature", 1.0))
+    rule = (StallRule.parse(cfg["stall_rule"]) if cfg.get("stall_rule") else StallRule()
+            ) if cfg.get("break_stalls") else None
+    b = 100
+    env = ConditionedEnv(make_env(cfg["env"], num_envs=b, seed=seed, max_steps=max_steps,
+                                  instance_order="round_robin", instance_ids=list(range(b))),
+                         conditions_from_dict(cond_block))
+    n = env.num_robots
+    obs, _ = env.reset()
+    h = rt.initial_state(b * n)
+    ids = np.tile(np.arange(n), b) if rt.spec.use_robot_id else None
+    rng = np.random.default_rng(seed)
+    breaker = StallBreaker(rule, b * n) if rule is not None else None
+    out: dict[int, Any] = {}
+    while len(out) < b:
+        flat = obs.reshape(b * n, -1)
+        act, _, h_next = rt.act(flat, h, greedy=greedy, rng=rng, robot_id=ids,
+                                temperature=temperature)
+        if breaker is not None:
+            stalled = breaker.update(flat)
+            if stalled.any():
+                drawn, _, _ = rt.act(flat, h, greedy=False, rng=rng, robot_id=ids,
+                                     temperature=breaker.rule.temperature)
+                act = np.where(stalled, drawn, act)
+        h = h_next
+        res = env.step(act.reshape(b, n))
+        for o in env.outcomes:
+            out.setdefault(o.env_index, o)
+        for ep in res.episodes:
+            h[ep.env_index * n:(ep.env_index + 1) * n] = 0.0
+            if breaker is not None:
+                breaker.reset(slice(ep.env_index * n, (ep.env_index + 1) * n))
+        obs = res.obs
+    oks = [out[e].survivors_completed for e in range(b)]
+    ms = mean_interval([float(out[e].survivors_makespan) for e in range(b) if oks[e]])
+    k = int(sum(oks))
+    return {"conditions": cond_block, "instances": b, "success": k / b,
+            "success_ci": wilson(k, b), "makespan": ms[0], "makespan_ci": (ms[1], ms[2])}
+
+
+def compare(path: Path) -> None:
+    """The in-process figures under each run's matching condition, beside the ROS ones."""
+    data = json.loads(path.read_text())
+    limit = int(next((s.split("=")[1] for s in data["meta"].get("sets", [])
+                      if s.startswith("max_steps=")), 500))
+    ideal: dict[str, Any] = {}
+    for run in data["runs"]:
+        if run["config"] not in ideal:
+            ideal[run["config"]] = play_in_process(run["config"], {}, limit)
+        lat = round(run["mean_staleness"] or 0)
+        block: dict[str, Any] = {"lost_actions": round(min(run["missed_fraction"] or 0, 0.99), 3)}
+        if lat:
+            block["latency"] = lat
+        run["inprocess_ideal"] = ideal[run["config"]]
+        run["inprocess_matched"] = m = play_in_process(run["config"], block, limit)
+        inside_s = m["success_ci"][0] <= run["success"] <= m["success_ci"][1]
+        inside_m = (run["makespan"] is not None and m["makespan_ci"][0] is not None
+                    and m["makespan_ci"][0] <= run["makespan"] <= m["makespan_ci"][1])
+        run["within_interval"] = {"success": inside_s, "makespan": inside_m}
+        i = ideal[run["config"]]
+        print(f"{Path(run['config']).stem} {run['rate_hz']:g} Hz: ROS success {run['success']:.2f}"
+              f", makespan {run['makespan'] or math.nan:.1f} | in process {block}: success "
+              f"{fmt_ci(m['success'], m['success_ci'])}, makespan "
+              f"{fmt_ci(m['makespan'], m['makespan_ci'], 1)} (inside: success {inside_s}, "
+              f"makespan {inside_m}) | ideal: {fmt_ci(i['success'], i['success_ci'])}, "
+              f"{fmt_ci(i['makespan'], i['makespan_ci'], 1)}", flush=True)
+    path.write_text(json.dumps(no_nan(data), indent=1))
+
+
 def no_nan(x: Any) -> Any:
     """JSON has no NaN: None instead."""
     if isinstance(x, float) and math.isnan(x):
@@ -145,7 +236,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", type=Path, help="write every run's figures and episodes here")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="extra launcher overrides for every run (e.g. max_steps=300)")
+    p.add_argument("--inprocess", type=Path, metavar="JSON",
+                   help="instead: add the in-process comparison to a JSON this script wrote")
     args = p.parse_args(argv)
+    if args.inprocess:
+        compare(args.inprocess)
+        return 0
     args.out.mkdir(parents=True, exist_ok=True)
     results = []
     for config in args.configs:

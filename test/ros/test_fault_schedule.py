@@ -64,6 +64,7 @@ def test_a_killed_actor_fails_its_robot_as_in_process(tmp_path: Path) -> None:
     (["faults=[{robot: 7, at_step: 3}]", "fail_after_missed=2"], "faults[0].robot"),
     (["faults=[{robot: 1, at_step: 3}]"], "fail_after_missed"),
     (["faults={robot: 1}"], "faults"),
+    (["faults=[{robot: 1, at_step: 3}]", "fail_after_missed=2", "actor_hosts=2"], "faults"),
     (["conditions.latency=-1"], "conditions.latency"),
     (["conditions={lost: 0.1}"], "conditions.lost"),
 ])

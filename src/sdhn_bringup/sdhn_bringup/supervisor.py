@@ -277,6 +277,9 @@ def validate(cfg: LaunchConfig) -> None:
         faults = parse_faults(cfg.faults, n, cfg.episodes)
     except (ConditionsError, FaultsError) as e:
         raise LaunchConfigError(str(e)) from None
+    if faults and cfg.actor_hosts:
+        raise LaunchConfigError("faults: kill one robot's actor process; allowed: only with "
+                                "actor_hosts: 0 (one process per robot)")
     if cfg.fail_after_missed < 0 or (faults and cfg.fail_after_missed == 0):
         raise LaunchConfigError(f"fail_after_missed: got {cfg.fail_after_missed}; allowed: 0 "
                                 "(never) or silent steps >= 1 (faults need >= 1, e.g. 3)")

@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_ros import ENVS, ROS2, make_weights, spawn, stop
 
-from sdhn_sim.ros import topics
+from sdhn_base.ros import topics
 
 NS = "/sdhn"
 
@@ -83,7 +83,7 @@ def main() -> int:
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
 
-    from sdhn_sim.ros.qos import DIAGNOSTICS
+    from sdhn_base.ros.qos import DIAGNOSTICS
 
     context = Context()
     rclpy.init(context=context)

@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from sdhn_train.analysis.experiments import DONE, load_suite, run_suite
+from sdhn_experiments.experiments import DONE, load_suite, run_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test" / "baselines"))
@@ -40,7 +40,7 @@ def main() -> int:
         logdir = tmp / backend
         t0 = time.perf_counter()
         if backend == "ray":
-            from sdhn_train.analysis.ray_backend import run_suite_ray
+            from sdhn_experiments.ray_backend import run_suite_ray
             counts = run_suite_ray(runs, logdir, num_cpus=2, out=io.StringIO())
         else:
             counts = run_suite(runs, logdir, jobs=2, out=io.StringIO())

@@ -38,12 +38,12 @@ from pathlib import Path
 
 import numpy as np
 
+from sdhn_base.ros import cdr, topics
+from sdhn_base.ros.status import EventReader
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
-from sdhn_sim.ros import cdr, topics
-from sdhn_sim.ros.status import EventReader
 
 ROOT = Path(__file__).resolve().parents[1]
-ROS2 = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run"]
+ROS2 = [sys.executable, "-m", "sdhn_bringup.ros2_cli", "run"]
 ENVS = {c.num_robots: name for name, c in MAIF_CONFIGS.items() if name != "maif-solo"}
 """N -> the MAIF task with N robots: 4 (maif-tiny), 10, 16, 20, 30, 40, 60, 100."""
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
@@ -143,8 +143,8 @@ def echo_main(robot: int, ns: str) -> int:
     import rclpy
     from rclpy.experimental import EventsExecutor
 
+    from sdhn_base.ros.qos import STEP
     from sdhn_msgs.msg import RobotAction, RobotObservation
-    from sdhn_sim.ros.qos import STEP
 
     rclpy.init()
     node = rclpy.create_node("echo", namespace=topics.absolute(ns, topics.robot(robot)))
@@ -177,8 +177,8 @@ def ceiling(n: int, steps: int) -> Window:
     from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
 
+    from sdhn_base.ros.qos import STEP
     from sdhn_msgs.msg import RobotAction, RobotObservation
-    from sdhn_sim.ros.qos import STEP
 
     ns = "/pingpong"
     echoes = [spawn([sys.executable, __file__, "--echo", str(i), "--ns", ns]) for i in range(n)]

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from sdhn_base.ros.topics import VIZ_METRICS, VIZ_SCENE
 from sdhn_sim.envs import make_single_env
-from sdhn_sim.ros.topics import VIZ_METRICS, VIZ_SCENE
 from sdhn_sim.viz.renderer import VizRenderer
 from sdhn_sim.viz.server import VizServer
 

@@ -18,7 +18,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from sdhn_train.analysis.heldout_eval import modes_table, paired_makespan_ratios
+from sdhn_experiments.heldout_eval import modes_table, paired_makespan_ratios
 
 
 def tables(results: list[dict[str, Any]]) -> str:

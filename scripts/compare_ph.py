@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sdhn_train.analysis.figures import Run, lambda_sk, read_run
+from sdhn_experiments.figures import Run, lambda_sk, read_run
 from sdhn_train.runs import PH_DIR
 
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Shipped MAIF policies under deployment conditions: success (survivors' success under robot
 failure), makespan and makespan over the ideal world, with 95 % intervals, at several severities
-of each condition (sdhn_sim.envs.conditions; logic in sdhn_train.analysis.condition_eval).
+of each condition (sdhn_sim.envs.conditions; logic in sdhn_experiments.condition_eval).
 
     .venv/bin/python scripts/eval_conditions.py models/maif-10-sdhn --instances 100 \\
         --conditions latency lost_actions --out /tmp/cond.json --markdown /tmp/cond.md
@@ -24,10 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sdhn_policy.actor_runtime import ActorRuntime
-from sdhn_sim.envs.conditions import Conditions, ConditionsError, conditions_from_dict
-from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
-from sdhn_train.analysis.condition_eval import (
+from sdhn_experiments.condition_eval import (
     DEFAULT_SET,
     Mode,
     card_mode,
@@ -36,7 +33,10 @@ from sdhn_train.analysis.condition_eval import (
     set_instances,
     summarise_under,
 )
-from sdhn_train.analysis.heldout_eval import set_checksum, write_json
+from sdhn_experiments.heldout_eval import set_checksum, write_json
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_sim.envs.conditions import Conditions, ConditionsError, conditions_from_dict
+from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 
 # condition name -> (severities, the Conditions of one severity)
 SWEEPS: dict[str, tuple[list[float], Any]] = {

@@ -24,13 +24,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from sdhn_policy.actor_runtime import ActorRuntime
-from sdhn_policy.stall_breaker import StallRule
-from sdhn_policy.weights import WeightsError
-from sdhn_sim import bounded_json
-from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
-from sdhn_sim.envs.registry import INSTANCE_SETS
-from sdhn_train.analysis.heldout_eval import (
+from sdhn_base import bounded_json
+from sdhn_experiments.heldout_eval import (
     WEDGE_STEPS,
     Policy,
     TorchPolicy,
@@ -43,6 +38,11 @@ from sdhn_train.analysis.heldout_eval import (
     summarise,
     write_json,
 )
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.stall_breaker import StallRule
+from sdhn_policy.weights import WeightsError
+from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+from sdhn_sim.envs.registry import INSTANCE_SETS
 
 EVAL_SETS = [s for s in INSTANCE_SETS if s != "procedural"]
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sdhn_train.analysis.figures import FigureError, Run, read_run
+from sdhn_experiments.figures import FigureError, Run, read_run
 
 ENTROPY = "losses/entropy"
 

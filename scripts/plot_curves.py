@@ -19,7 +19,6 @@ above (a learner near 0 beside a baseline at 30).
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -31,18 +30,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.ticker import EngFormatter
 
-
-def read_run(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """{tag: (steps, values)} from one metrics.csv (long format: step, wall_time, tag, value)."""
-    series: dict[str, list[tuple[int, float]]] = defaultdict(list)
-    with open(path, newline="") as f:
-        for row in csv.DictReader(f):
-            series[row["tag"]].append((int(row["step"]), float(row["value"])))
-    out = {}
-    for tag, pts in series.items():
-        pts.sort()
-        out[tag] = (np.array([p[0] for p in pts]), np.array([p[1] for p in pts]))
-    return out
+from sdhn_train.metrics_file import metrics_path, read_series
 
 
 def group_name(run_dir: Path) -> str:
@@ -68,9 +56,9 @@ def plot(runs: list[Path], tags: list[str], out: Path, smooth: int = 1, *,
     """Draws ``out``; returns, per tag, the labels of what its panel shows (curves, baselines)."""
     groups: dict[str, list[dict[str, tuple[np.ndarray, np.ndarray]]]] = defaultdict(list)
     for run in runs:
-        csv_path = run / "metrics.csv" if run.is_dir() else run
+        csv_path = metrics_path(run) if run.is_dir() else run
         name = csv_path.parent.name if per_run else group_name(csv_path.parent)
-        groups[name].append(read_run(csv_path))
+        groups[name].append(read_series(csv_path))
     drawn: dict[str, list[str]] = {}
     fig, axes = plt.subplots(1, len(tags), figsize=(5 * len(tags), 3.6), squeeze=False)
     for ax, tag, title in zip(axes[0], tags, titles or tags, strict=True):
@@ -128,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.titles and len(args.titles) != len(args.tags):
         p.error(f"--titles wants {len(args.tags)} titles, one per tag, got {len(args.titles)}")
-    missing = [r for r in args.runs if not (r / "metrics.csv" if r.is_dir() else r).exists()]
+    missing = [r for r in args.runs if not (metrics_path(r) if r.is_dir() else r).exists()]
     if missing:
         print(f"plot_curves: no metrics.csv in {', '.join(map(str, missing))}", file=sys.stderr)
         return 2

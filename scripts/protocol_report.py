@@ -7,7 +7,7 @@ of improvement, sample-efficiency curves, the absolute metric, marl-eval JSON, t
 
 import sys
 
-from sdhn_train.analysis.protocol_report import main
+from sdhn_experiments.protocol_report import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up everything sdhn needs, idempotently: Debian build tools if missing, the Python 3.11
 # virtualenv .venv from requirements.lock (exact pins), the sdhn_msgs interfaces built with plain
-# cmake into the venv, and the four ament_python packages installed in editable mode.
+# cmake into the venv, and the six ament_python packages installed in editable mode.
 # A second run with nothing changed returns in about a second (stamp keyed on the inputs' hashes).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -76,13 +76,14 @@ fi
 
 # --- our ament_python packages, editable so the working tree is what runs -----------------
 if ! stamp_ok pkgs "$pkgs_key"; then
-  say "installing sdhn_sim, sdhn_policy, sdhn_train, sdhn_bringup (editable)"
+  say "installing sdhn_base, sdhn_sim, sdhn_policy, sdhn_train, sdhn_experiments, sdhn_bringup (editable)"
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation \
-    -e src/sdhn_sim -e src/sdhn_policy -e src/sdhn_train -e src/sdhn_bringup 2>&1 | grep -v "is ignored" || true
+    -e src/sdhn_base -e src/sdhn_sim -e src/sdhn_policy -e src/sdhn_train -e src/sdhn_experiments \
+    -e src/sdhn_bringup 2>&1 | grep -v "is ignored" || true
   echo "$pkgs_key" > "$STAMPS/pkgs"
 fi
 
 ROS_LOG_DIR="${ROS_LOG_DIR:-$(mktemp -d)}" "$VENV/bin/python" -c \
-  "import sdhn_msgs.msg, sdhn_sim, sdhn_policy, sdhn_train, sdhn_bringup" \
+  "import sdhn_msgs.msg, sdhn_base, sdhn_sim, sdhn_policy, sdhn_train, sdhn_experiments, sdhn_bringup" \
   || { echo "setup: the installed packages do not import" >&2; exit 1; }
 say "ready: $VENV"

@@ -26,6 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from sdhn_base.yaml_io import YamlError, load_yaml
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.deploy_contract import write_deploy_json
 from sdhn_policy.deploy_eval import (
@@ -41,7 +42,6 @@ from sdhn_policy.weights import WeightsError, decode_weights, load_actor_file, s
 from sdhn_sim.envs import make_env
 from sdhn_sim.envs.maif_scripted import evaluate_scripted
 from sdhn_sim.envs.rware_baselines import LABELS, POLICIES, evaluate_baseline
-from sdhn_sim.yaml_io import YamlError, load_yaml
 
 CardWriter = Callable[[dict[str, object], str], str]  # (card, note) -> card.md
 

@@ -14,8 +14,8 @@ export ROS_LOG_DIR
 echo "[test] ruff check"
 .venv/bin/ruff check src test scripts
 echo "[test] mypy on src/"
-MYPYPATH=src/sdhn_sim:src/sdhn_policy:src/sdhn_train:src/sdhn_bringup .venv/bin/mypy \
-  -p sdhn_sim -p sdhn_policy -p sdhn_train -p sdhn_bringup
+MYPYPATH=src/sdhn_base:src/sdhn_sim:src/sdhn_policy:src/sdhn_train:src/sdhn_experiments:src/sdhn_bringup .venv/bin/mypy \
+  -p sdhn_base -p sdhn_sim -p sdhn_policy -p sdhn_train -p sdhn_experiments -p sdhn_bringup
 echo "[test] docs: mkdocs build --strict (a broken link or a page missing from disk fails)"
 SITE_DIR="$(mktemp -d -t sdhn-site-XXXXXX)"
 NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict --quiet --site-dir "$SITE_DIR"

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sdhn_train.analysis.carry import BUDGET_BYTES, PACKED_FILES, run_dirs, tree_bytes
+from sdhn_experiments.carry import BUDGET_BYTES, PACKED_FILES, run_dirs, tree_bytes
 
 CARRY = Path(__file__).resolve().parents[1] / "carry"
 

@@ -11,7 +11,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sdhn_sim.diagnostics import (
+from sdhn_base.diagnostics import (
     ERROR,
     OK,
     THRESHOLDS,

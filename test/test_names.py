@@ -15,17 +15,17 @@ from pathlib import Path
 
 import pytest
 
+from sdhn_base.ros.runner import ConfigError as NodeConfigError
 from sdhn_bringup.supervisor import LaunchConfigError, load_config
+from sdhn_experiments.experiments import ExperimentError, load_suite
+from sdhn_experiments.figures import method_order, task_order
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.lockstep import SimConfig, SimConfigError
 from sdhn_sim.poses import target_reader
-from sdhn_sim.ros.runner import ConfigError as NodeConfigError
 from sdhn_sim.sim_node import PARAMETERS, sim_config
 from sdhn_sim.viz.viz_node import _check_params as viz_check_params
 from sdhn_train import cli
 from sdhn_train.algorithms.registry import ALGO_NAMES
-from sdhn_train.analysis.experiments import ExperimentError, load_suite
-from sdhn_train.analysis.figures import method_order, task_order
 from sdhn_train.config import Config, ConfigError, validate
 from sdhn_train.trainer_node import TrainerParams, check_params
 

@@ -1,4 +1,4 @@
-"""Evaluation under deployment conditions (sdhn_train.analysis.condition_eval): the ideal world
+"""Evaluation under deployment conditions (sdhn_experiments.condition_eval): the ideal world
 reproduces the held-out evaluation, and dead reckoning is measured against plain play."""
 
 from __future__ import annotations
@@ -7,11 +7,11 @@ import dataclasses
 
 import pytest
 
+from sdhn_experiments.condition_eval import Mode, card_mode, evaluate_under, summarise_under
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.deploy_eval import instance_env, run_actor
 from sdhn_policy.stall_breaker import StallRule
 from sdhn_sim.envs.conditions import Conditions
-from sdhn_train.analysis.condition_eval import Mode, card_mode, evaluate_under, summarise_under
 
 ACTOR = "models/maif-tiny-sdhn/actor.safetensors"
 

@@ -15,10 +15,10 @@ import onnx
 import pytest
 from faults.crafted_onnx import DTYPES, SPEC, Craft, crafted
 
+from sdhn_base.drops import DropKind
 from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_from_file
 from sdhn_policy.onnx_runtime import OnnxActorRuntime
 from sdhn_policy.weights import WeightsError
-from sdhn_sim.drops import DropKind
 
 
 def write(tmp_path: Path, c: Craft, name: str = "actor.onnx") -> Path:

@@ -1,4 +1,4 @@
-"""The one override engine (``sdhn_sim.overrides``) used by the trainer config and the launcher."""
+"""The one override engine (``sdhn_base.overrides``) used by the trainer config and the launcher."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from sdhn_sim.overrides import OverrideError, coerce, set_field
+from sdhn_base.overrides import OverrideError, coerce, set_field
 
 
 @pytest.mark.parametrize(("text", "want"), [

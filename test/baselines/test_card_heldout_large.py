@@ -1,6 +1,6 @@
-"""scripts/card_heldout_large.py: a shipped card gains the large held-out set (greedy and a
-sampled mode) without losing what ship_model wrote, rerunning replaces that section, and a card
-whose checksum names other weights is refused."""
+"""sdhn_experiments.card_heldout (scripts/card_heldout_large.py): a shipped card gains the large
+held-out set (greedy and a sampled mode) without losing what ship_model wrote, rerunning
+replaces that section, and a card whose checksum names other weights is refused."""
 
 from __future__ import annotations
 
@@ -9,14 +9,15 @@ import shutil
 from pathlib import Path
 
 import pytest
-from script_modules import load_script
+
+from sdhn_experiments import card_heldout
 
 ROOT = Path(__file__).resolve().parents[2]
 MODEL = ROOT / "models" / "maif-solo-mappo"
 
 
 def test_card_gains_the_large_set_and_keeps_the_rest(tmp_path: Path) -> None:
-    card = load_script("card_heldout_large")
+    card = card_heldout
     model = tmp_path / "maif-solo-mappo"
     shutil.copytree(MODEL, model)
     before = (model / "card.md").read_text()
@@ -59,7 +60,7 @@ def test_card_gains_the_large_set_and_keeps_the_rest(tmp_path: Path) -> None:
 
 def test_card_of_other_weights_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]
                                           ) -> None:
-    card = load_script("card_heldout_large")
+    card = card_heldout
     model = tmp_path / "m"
     shutil.copytree(MODEL, model)
     data = json.loads((model / "card.json").read_text())

@@ -1,5 +1,5 @@
-"""Carrying a suite's log directory to another machine (analysis/carry.py): a finished run is
-skipped there, an unfinished one resumes from its carried checkpoint in a log directory at
+"""Carrying a suite's log directory to another machine (sdhn_experiments/carry.py): a finished
+run is skipped there, an unfinished one resumes from its carried checkpoint in a log directory at
 another path and ends with the same results as an uninterrupted run, and a restore never
 replaces newer progress. The carried form is compact (logs packed, no checkpoint, snapshot or
 actor a finished run's reports do not read) and the reports read it as they read a log
@@ -17,10 +17,10 @@ from pathlib import Path
 
 import yaml
 
-from sdhn_train.analysis.carry import MANIFEST, main, progress, restore, save
-from sdhn_train.analysis.experiments import DONE, load_suite, prepare, run_suite
-from sdhn_train.analysis.figures import read_run
-from sdhn_train.analysis.protocol_report import absolute_records
+from sdhn_experiments.carry import MANIFEST, main, progress, restore, save
+from sdhn_experiments.experiments import DONE, load_suite, prepare, run_suite
+from sdhn_experiments.figures import read_run
+from sdhn_experiments.protocol_report import absolute_records
 from sdhn_train.checkpoint import checkpoints
 
 from .test_experiments import RESUME_SUITE, _results

@@ -16,14 +16,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sdhn_train.analysis.experiments import (
+from sdhn_experiments.experiments import (
     DONE,
     ExperimentError,
     list_line,
     load_suite,
     run_suite,
 )
-from sdhn_train.analysis.figures import make_figures
+from sdhn_experiments.figures import make_figures
 from sdhn_train.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -123,7 +123,7 @@ def test_resume_after_kill(tmp_path: Path) -> None:
     # finished and the second has written a checkpoint.
     logdir = tmp_path / "logs"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    proc = subprocess.Popen([sys.executable, "-m", "sdhn_train.analysis.experiments_cli",
+    proc = subprocess.Popen([sys.executable, "-m", "sdhn_experiments.experiments_cli",
                              str(suite), "--budget", "quick", "--logdir", str(logdir),
                              "--jobs", "1"],
                             env=env, start_new_session=True, stdout=subprocess.DEVNULL,

@@ -24,12 +24,12 @@ from typing import Any
 
 import pytest
 
-from sdhn_train.analysis.experiments import DONE, RunSpec, load_suite, run_suite
-from sdhn_train.analysis.figures import load_runs, results_table
+from sdhn_experiments.experiments import DONE, RunSpec, load_suite, run_suite
+from sdhn_experiments.figures import load_runs, results_table
 
 pytest.importorskip("ray")
 
-from sdhn_train.analysis.ray_backend import ATTEMPTS, run_suite_ray
+from sdhn_experiments.ray_backend import ATTEMPTS, run_suite_ray
 
 SUITE = """
 name: ray
@@ -80,7 +80,7 @@ def _same_as_local(runs: list[RunSpec], logdir: Path, ref: Path) -> None:
 
 
 def test_local_backend_does_not_import_ray() -> None:
-    code = ("import sys; from sdhn_train.analysis import experiments, experiments_cli; "
+    code = ("import sys; from sdhn_experiments import experiments, experiments_cli; "
             "assert 'ray' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True,
                    env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})

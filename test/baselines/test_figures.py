@@ -12,9 +12,9 @@ import pytest
 import torch
 import yaml
 
+from sdhn_experiments.figures import FigureError, lambda_sk, load_runs, main, make_figures
 from sdhn_train.algorithms.mappo import MLPCritic
 from sdhn_train.algorithms.sdhn.critic import SDHNCritic
-from sdhn_train.analysis.figures import FigureError, lambda_sk, load_runs, main, make_figures
 from sdhn_train.config import Config
 from sdhn_train.learners.base import HypergraphSamples
 from sdhn_train.learners.ppo import Critic

@@ -14,10 +14,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from sdhn_policy.actor_runtime import ActorRuntime
-from sdhn_policy.stall_breaker import StallRule
-from sdhn_policy.weights import ActorSpec
-from sdhn_train.analysis.heldout_eval import (
+from sdhn_experiments.heldout_eval import (
     InstanceResult,
     TorchPolicy,
     evaluate_set,
@@ -25,6 +22,9 @@ from sdhn_train.analysis.heldout_eval import (
     summarise,
     wilson_interval,
 )
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.stall_breaker import StallRule
+from sdhn_policy.weights import ActorSpec
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "models" / "maif-tiny-sdhn" / "actor.safetensors"
@@ -209,7 +209,7 @@ def test_stall_breaking_samples_only_where_play_stalled() -> None:
 
 
 def test_paired_makespan_counts_only_instances_every_mode_completed() -> None:
-    from sdhn_train.analysis.heldout_eval import paired_makespan_ratios
+    from sdhn_experiments.heldout_eval import paired_makespan_ratios
 
     def run(makespans: list[int | None]) -> dict[str, object]:
         return {"task": "maif-10", "set": "heldout_large", "set_checksum": "x",

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import yaml
 
-from sdhn_train.analysis.protocol_report import report
+from sdhn_experiments.protocol_report import report
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -153,7 +153,7 @@ def test_rware_report_pairs_sdhn_with_mappo_at_the_same_settings(tmp_path: Path)
 
 
 def test_pairs_and_labels() -> None:
-    from sdhn_train.analysis.protocol_report import label, sdhn_partner
+    from sdhn_experiments.protocol_report import label, sdhn_partner
 
     methods = {"sdhn", "sdhn_ent01", "mappo", "mappo_ent01", "mappo_ff", "hgcn_mix",
                "sdhn_wo_lsk"}

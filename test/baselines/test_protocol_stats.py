@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from sdhn_train.analysis import protocol_stats as ps
+from sdhn_experiments import protocol_stats as ps
 
 
 def test_iqm_is_the_mean_of_the_middle_half() -> None:

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_train.analysis.experiments import ExperimentError, load_suite
-from sdhn_train.analysis.experiments_cli import main as run_experiments
+from sdhn_experiments.experiments import ExperimentError, load_suite
+from sdhn_experiments.experiments_cli import main as run_experiments
 
 SUITES = Path(__file__).resolve().parents[2] / "configs" / "suites"
 

@@ -7,11 +7,11 @@ import json
 from pathlib import Path
 
 import pytest
-from script_modules import load_script
 
+from sdhn_experiments import stall_rule_cli
+from sdhn_experiments.heldout_eval import InstanceResult
+from sdhn_experiments.stall_tuning import RuleScore, choose, pool, ranked, rule_grid, score
 from sdhn_policy.stall_breaker import StallRule
-from sdhn_train.analysis.heldout_eval import InstanceResult
-from sdhn_train.analysis.stall_tuning import RuleScore, choose, pool, ranked, rule_grid, score
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -74,10 +74,11 @@ def test_rule_grid_is_every_valid_combination_smallest_first() -> None:
 
 
 def test_script_chooses_on_validation_and_reports_on_heldout(tmp_path: Path) -> None:
-    """scripts/tune_stall_rule.py on the lone maif-solo robot (seconds): every grid rule is
-    scored on the validation set, the choice is one of them, and the held-out report has
-    greedy play, the default rule and the choice, with intervals and paired makespans."""
-    tune = load_script("tune_stall_rule")
+    """sdhn_experiments.stall_rule_cli (scripts/tune_stall_rule.py) on the lone maif-solo robot
+    (seconds): every grid rule is scored on the validation set, the choice is one of them, and
+    the held-out report has greedy play, the default rule and the choice, with intervals and
+    paired makespans."""
+    tune = stall_rule_cli
     out, md = tmp_path / "stall.json", tmp_path / "stall.md"
     argv = [str(ROOT / "models" / "maif-solo-mappo"), "--calm", "3", "--progress", "5", "8",
             "--sample", "3", "--refine-top", "0", "--planner-cache", str(tmp_path / "plan"),
@@ -101,7 +102,7 @@ def test_script_chooses_on_validation_and_reports_on_heldout(tmp_path: Path) -> 
 
 
 def test_script_refuses_a_bad_grid_before_evaluating(capsys: pytest.CaptureFixture[str]) -> None:
-    tune = load_script("tune_stall_rule")
+    tune = stall_rule_cli
     assert tune.main([str(ROOT / "models" / "maif-solo-mappo"), "--sample", "0"]) == 2
     assert "sample_steps" in capsys.readouterr().err
     assert tune.main([str(ROOT / "models" / "rware-3-mappo")]) == 2

@@ -20,7 +20,7 @@ from typing import Any
 
 from ros.processes import NodeProcess
 
-from sdhn_sim.ros import topics
+from sdhn_base.ros import topics
 
 LAUNCH = [sys.executable, "-m", "sdhn_bringup"]
 _LOG_TIME = re.compile(r"^\[(\w+)\] \[(\d+\.\d+)\] \[([^\]]+)\]: (.*)$")
@@ -89,8 +89,8 @@ class Watcher(Peer):
     messages arrive, each with its receive time."""
 
     def __init__(self, ns: str, num_robots: int, name: str = "fault_watcher") -> None:
+        from sdhn_base.ros.qos import LATCHED, STEP
         from sdhn_msgs.msg import EpisodeSummary, PolicyWeights, RobotAction, TeamState
-        from sdhn_sim.ros.qos import LATCHED, STEP
 
         super().__init__(name)
         self.ns = ns.rstrip("/")

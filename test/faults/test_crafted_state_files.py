@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sdhn_sim.ros.status import EventReader, read_statuses
+from sdhn_base.ros.status import EventReader, read_statuses
 from sdhn_train.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 
 DEEP = "[" * 100_000 + "]" * 100_000

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from sdhn_train.analysis.figures import main
+from sdhn_experiments.figures import main
 from sdhn_train.config import Config
 
 

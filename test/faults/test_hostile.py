@@ -20,10 +20,10 @@ from rclpy.duration import Duration
 from ros.deploy_helpers import actor_cmd, sim_cmd
 from ros.processes import node_processes
 
+from sdhn_base.ros import topics
+from sdhn_base.ros.qos import LATCHED, STEP
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation, TeamState
 from sdhn_policy.weights import ActorSpec, decode_weights, encode_actor, save_actor_file
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import LATCHED, STEP
 
 from .graph import Peer, wait_until
 from .hostile import action_msg, hostile_weights, obs_msg, weights_msg

@@ -22,10 +22,10 @@ from rclpy.serialization import serialize_message
 from ros.processes import ROS2, NodeProcess, node_processes
 from ros.team_stream import team_stream
 
+from sdhn_base.ros import topics
+from sdhn_base.ros.qos import STEP
 from sdhn_sim.recording.reader import decode, read_recording
 from sdhn_sim.recording.writer import CHUNK_BYTES
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import STEP
 from sdhn_train.checkpoint import latest_checkpoint
 
 from .graph import (

@@ -89,12 +89,12 @@ def test_an_actor_that_cannot_act_fails(tmp_path: Path) -> None:
     import rclpy
     from rclpy.context import Context
 
+    from sdhn_base.ros.qos import STEP
     from sdhn_msgs.msg import RobotObservation
-    from sdhn_sim.ros.qos import STEP
 
     w = wrong_weights(tmp_path / "actor.safetensors")
     ns = "/cannot_act"
-    cmd = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", "sdhn_policy", "actor",
+    cmd = [sys.executable, "-m", "sdhn_bringup.ros2_cli", "run", "sdhn_policy", "actor",
            "--ros-args", "-r", f"__ns:={ns}/robot_0", "-p", f"team_ns:={ns}",
            "-p", "robot_id:=0", "-p", "num_robots:=2", "-p", f"weights_file:={w}"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from sdhn_base import litter
 from sdhn_policy.weights import atomic_write_bytes
-from sdhn_sim import litter
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -56,7 +56,7 @@ def test_tmp_of_a_killed_writer_is_removed_at_the_next_write(tmp_path: Path) -> 
 def test_fastdds_segments_of_a_killed_node_are_removed_live_ones_kept(monkeypatch) -> None:
     monkeypatch.setattr(litter, "MIN_AGE_S", 1.0)  # not 0: never judge a starting process
     before = set(os.listdir("/dev/shm"))
-    cmd = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", "sdhn_policy", "actor",
+    cmd = [sys.executable, "-m", "sdhn_bringup.ros2_cli", "run", "sdhn_policy", "actor",
            "--ros-args", "-r", "__ns:=/litter/robot_0", "-p", "team_ns:=/litter",
            "-p", "robot_id:=0", "-p", "num_robots:=1"]
     victim = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,

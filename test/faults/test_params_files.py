@@ -15,7 +15,7 @@ import yaml
 from rclpy.context import Context
 from ros.processes import ROS2, NodeProcess
 
-from sdhn_sim.ros.params_file import MAX_ENTRIES, ParamsFileError, check_params_file
+from sdhn_base.ros.params_file import MAX_ENTRIES, ParamsFileError, check_params_file
 
 VIZ = [*ROS2, "run", "sdhn_sim", "viz", "--ros-args", "-p", "port:=0"]
 

@@ -81,7 +81,7 @@ def test_local_ray_listens_on_loopback_only_and_sigterm_is_one_line(tmp_path: Pa
     ray_tmp = tempfile.mkdtemp(prefix="sdhnrh")  # short: Ray's socket paths must fit 107 bytes
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), "RAY_TMPDIR": ray_tmp}
     env.pop("RAY_ADDRESS", None)
-    proc = subprocess.Popen([sys.executable, "-m", "sdhn_train.analysis.experiments_cli",
+    proc = subprocess.Popen([sys.executable, "-m", "sdhn_experiments.experiments_cli",
                              str(suite), "--budget", "long", "--logdir", str(logdir),
                              "--backend", "ray", "--num-cpus", "1"], env=env,
                             start_new_session=True, stdout=subprocess.PIPE,
@@ -134,8 +134,8 @@ def _alive(pid: int) -> bool:
 def test_a_run_larger_than_the_local_ray_is_refused_not_queued_forever(tmp_path: Path) -> None:
     """A run asking for more CPUs than --num-cpus would stay pending forever on Ray: refused
     (one line) before Ray starts."""
-    from sdhn_train.analysis.experiments import ExperimentError, load_suite
-    from sdhn_train.analysis.ray_backend import run_suite_ray
+    from sdhn_experiments.experiments import ExperimentError, load_suite
+    from sdhn_experiments.ray_backend import run_suite_ray
 
     suite = tmp_path / "suite.yaml"
     suite.write_text(SUITE.replace("      log.tensorboard: false\n",

@@ -14,13 +14,13 @@ from pathlib import Path
 import pytest
 from rclpy.serialization import serialize_message
 
+from sdhn_base.ros.qos import STEP
+from sdhn_base.yaml_io import load_yaml
 from sdhn_msgs.msg import EpisodeSummary, TeamState
 from sdhn_sim.recording import rosbag2
 from sdhn_sim.recording.writer import McapRosWriter
-from sdhn_sim.ros.qos import STEP
-from sdhn_sim.yaml_io import load_yaml
 
-REPLAY = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", "sdhn_sim", "replay"]
+REPLAY = [sys.executable, "-m", "sdhn_bringup.ros2_cli", "run", "sdhn_sim", "replay"]
 STATES = 400
 
 

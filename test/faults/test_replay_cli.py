@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "maif-tiny-pre-instance-id.mcap"
-REPLAY = [sys.executable, "-m", "sdhn_sim.ros2_cli", "run", "sdhn_sim", "replay"]
+REPLAY = [sys.executable, "-m", "sdhn_bringup.ros2_cli", "run", "sdhn_sim", "replay"]
 
 
 def replay(*args: str) -> subprocess.CompletedProcess[str]:

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sdhn_train.analysis import experiments_cli
-from sdhn_train.analysis.experiments import (
+from sdhn_experiments import experiments_cli
+from sdhn_experiments.experiments import (
     DONE,
     LOCK,
     ExperimentError,
@@ -54,7 +54,7 @@ GOOD = ("name: h\nmethods:\n  mappo: {algo: mappo}\ntasks:\n  maif-solo: {env.ma
 
 def runner(*args: str | Path, timeout: float = 60) -> subprocess.CompletedProcess[str]:
     """run_experiments in a process of its own (as a user starts it)."""
-    return subprocess.run([sys.executable, "-m", "sdhn_train.analysis.experiments_cli",
+    return subprocess.run([sys.executable, "-m", "sdhn_experiments.experiments_cli",
                            *map(str, args)], env=ENV, capture_output=True, text=True,
                           timeout=timeout, check=False)
 
@@ -315,7 +315,7 @@ def test_second_runner_on_a_logdir_in_use_is_refused_even_after_the_first_is_kil
     suite = _suite(tmp_path, GOOD.replace("total_steps: 256", "total_steps: 100000"))
     logdir = tmp_path / "logs"
     run = load_suite(suite, "quick")[0]
-    a = subprocess.Popen([sys.executable, "-m", "sdhn_train.analysis.experiments_cli",
+    a = subprocess.Popen([sys.executable, "-m", "sdhn_experiments.experiments_cli",
                           str(suite), "--logdir", str(logdir), "--jobs", "1"], env=ENV,
                          start_new_session=True, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL)
@@ -358,7 +358,7 @@ def test_sigint_stops_a_runner_started_in_the_background_by_a_script(tmp_path: P
     run = load_suite(suite, "quick")[0]
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited through exec, as from
     try:                                                      # a shell without job control
-        proc = subprocess.Popen([sys.executable, "-m", "sdhn_train.analysis.experiments_cli",
+        proc = subprocess.Popen([sys.executable, "-m", "sdhn_experiments.experiments_cli",
                                  str(suite), "--logdir", str(logdir), "--jobs", "1"], env=ENV,
                                 start_new_session=True, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True)
@@ -400,10 +400,10 @@ def test_trainer_run_name_is_one_directory_name(name: str) -> None:
 def test_trainer_trim_drops_a_cut_off_last_row(tmp_path: Path) -> None:
     """The same class in the trainer's own resume (train --resume): its cut of metrics.csv
     also drops a row a crash cut off, which it used to keep when the step survived."""
-    from sdhn_train.runs import trim_metrics
+    from sdhn_train.metrics_file import trim
 
     (tmp_path / "metrics.csv").write_text("step,wall_time,tag,value\n32,1.0,a,1\n64,2.0,a,2\n"
                                           "64,2.5,b")
-    assert trim_metrics(tmp_path, 64) == 1
+    assert trim(tmp_path / "metrics.csv", 64) == 1
     assert (tmp_path / "metrics.csv").read_text().splitlines() == [
         "step,wall_time,tag,value", "32,1.0,a,1", "64,2.0,a,2"]

@@ -10,12 +10,12 @@ import sys
 import textwrap
 import time
 
-from sdhn_sim.ros.runner import TEARDOWN_S
+from sdhn_base.ros.runner import TEARDOWN_S
 
 HANGING_NODE = textwrap.dedent("""
     import sys, time
     from rclpy.node import Node
-    from sdhn_sim.ros.runner import run_node
+    from sdhn_base.ros.runner import run_node
 
     class Stuck(Node):
         def __init__(self, *args, **kwargs):

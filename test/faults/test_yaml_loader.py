@@ -1,4 +1,4 @@
-"""The one YAML loader (sdhn_sim.yaml_io) and every reader routed through it: duplicate keys,
+"""The one YAML loader (sdhn_base.yaml_io) and every reader routed through it: duplicate keys,
 alias bombs, binary and oversized files are one line, never a silent winner or a MemoryError."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from sdhn_sim.yaml_io import MAX_BYTES, YamlError, load_yaml
+from sdhn_base.yaml_io import MAX_BYTES, YamlError, load_yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from sdhn_sim.ros import topics
+from sdhn_base.ros import topics
 
 from .processes import ROS2
 
@@ -130,8 +130,8 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     from rclpy.experimental import EventsExecutor
     from rclpy.qos import QoSProfile
 
+    from sdhn_base.ros.qos import DIAGNOSTICS, STEP
     from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
-    from sdhn_sim.ros.qos import DIAGNOSTICS, STEP
 
     # The test process is a starved observer on a loaded machine: a reader history as deep as a
     # whole test run, so samples it is slow to take are never overwritten in its own cache

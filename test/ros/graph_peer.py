@@ -20,8 +20,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import String
 
+from sdhn_base.ros.qos import LATCHED, STEP
 from sdhn_msgs.msg import RobotObservation
-from sdhn_sim.ros.qos import LATCHED, STEP
 
 
 def observation(step: int) -> RobotObservation:

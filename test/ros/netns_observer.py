@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sdhn_sim.ros import topics
+from sdhn_base.ros import topics
 
 from .deploy_helpers import observer
 

@@ -19,9 +19,9 @@ import rclpy
 from rclpy.context import Context
 from rclpy.experimental import EventsExecutor
 
+from sdhn_base.ros import topics
+from sdhn_base.ros.qos import STEP
 from sdhn_msgs.msg import RobotAction, RobotObservation
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import STEP
 
 OBS_1 = topics.absolute("/sdhn", topics.robot_obs(1))
 ACTION_1 = topics.absolute("/sdhn", topics.robot_action(1))

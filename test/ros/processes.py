@@ -13,7 +13,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-ROS2 = [sys.executable, "-m", "sdhn_sim.ros2_cli"]
+ROS2 = [sys.executable, "-m", "sdhn_bringup.ros2_cli"]
 
 
 class NodeProcess:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sdhn_base.ros import topics
 from sdhn_msgs.msg import (
     EpisodeSummary,
     Hypergraph,
@@ -20,7 +21,6 @@ from sdhn_msgs.msg import (
 )
 from sdhn_sim.envs import make_single_env
 from sdhn_sim.episode import EpisodeResult
-from sdhn_sim.ros import topics
 
 ENV = "maif-tiny"
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
 
+from sdhn_base.ros.cdr import CdrError, read_action, read_observation, read_state
 from sdhn_msgs.msg import RobotAction, RobotObservation, TeamState
-from sdhn_sim.ros.cdr import CdrError, read_action, read_observation, read_state
 
 
 def f32(a: np.ndarray) -> array.array:

@@ -115,9 +115,9 @@ def test_actor_process_never_imports_torch(weights: Path) -> None:
 
 
 def test_actor_takes_latched_weights_and_drops_bad_ones(weights: Path) -> None:
+    from sdhn_base.ros.qos import LATCHED
     from sdhn_msgs.msg import PolicyWeights
     from sdhn_policy.weights import load_actor_file
-    from sdhn_sim.ros.qos import LATCHED
 
     blob = load_actor_file(weights)
     ns = "/sdhn_latched"

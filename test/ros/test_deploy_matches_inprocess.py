@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from sdhn_base.ros import topics
 from sdhn_policy.onnx_export import write_onnx
 from sdhn_policy.weights import decode_weights, load_actor_file
-from sdhn_sim.ros import topics
 
 from .deploy_helpers import (
     action_table,

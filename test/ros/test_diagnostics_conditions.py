@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sdhn_sim.ros import topics
+from sdhn_base.ros import topics
 
 from .deploy_helpers import actor_cmd, sim_cmd, stop_all
 from .processes import node_processes
@@ -23,7 +23,7 @@ def test_diagnostics_report_the_clock_conditions_and_failed_robots(weights: Path
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
 
-    from sdhn_sim.ros.qos import DIAGNOSTICS
+    from sdhn_base.ros.qos import DIAGNOSTICS
 
     context = Context()
     rclpy.init(context=context)

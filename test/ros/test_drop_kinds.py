@@ -7,6 +7,7 @@ import json
 
 import pytest
 
+from sdhn_base.drops import DESCRIPTIONS, DropKind, describe
 from sdhn_policy.weights import (
     BadTensorsError,
     IncompatibleWeightsError,
@@ -15,7 +16,6 @@ from sdhn_policy.weights import (
     UnknownFormatError,
     WeightsError,
 )
-from sdhn_sim.drops import DESCRIPTIONS, DropKind, describe
 from sdhn_sim.lockstep import LockstepSim, SimConfig
 
 from .test_transitions import assembler, feed, script

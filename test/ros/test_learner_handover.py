@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sdhn_base.drops import DropKind
+from sdhn_base.ros.status import read_statuses, write_status
 from sdhn_bringup.supervisor import node_status_parts
-from sdhn_sim.drops import DropKind
-from sdhn_sim.ros.status import read_statuses, write_status
 from sdhn_train import transitions as tr
 from sdhn_train.learner_offload import (
     assembled_from,

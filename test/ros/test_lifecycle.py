@@ -21,7 +21,7 @@ from typing import Any
 
 import pytest
 
-from sdhn_sim.ros import topics
+from sdhn_base.ros import topics
 
 from .deploy_helpers import actor_cmd, sim_cmd, stop_all
 from .processes import ROS2, node_processes
@@ -38,9 +38,9 @@ class Manager:
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.qos import QoSProfile
 
+        from sdhn_base.ros.lifecycle_client import LifecycleClient
+        from sdhn_base.ros.qos import DIAGNOSTICS, STEP
         from sdhn_msgs.msg import RobotAction, TeamState
-        from sdhn_sim.ros.lifecycle_client import LifecycleClient
-        from sdhn_sim.ros.qos import DIAGNOSTICS, STEP
 
         self.client = LifecycleClient("test_manager")
         node = self.client.node
@@ -66,12 +66,12 @@ class Manager:
         return False
 
     def change(self, node: str, transition: str) -> bool | None:
-        from sdhn_sim.ros.lifecycle_client import change_state
+        from sdhn_base.ros.lifecycle_client import change_state
 
         return change_state(self.client, node, transition, timeout_s=20)
 
     def state(self, node: str) -> str | None:
-        from sdhn_sim.ros.lifecycle_client import get_state
+        from sdhn_base.ros.lifecycle_client import get_state
 
         return get_state(self.client, node, timeout_s=20)
 

@@ -15,10 +15,10 @@ from typing import Any
 
 import pytest
 
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
+from sdhn_base.ros import topics
+from sdhn_base.ros.status import EventReader
 from sdhn_sim.recording.reader import Recording, read_recording
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.status import EventReader
 
 from .deploy_helpers import actor_cmd, inprocess_greedy_actions, sim_cmd, stop_all
 from .netns import Net, closed_network, host_env, netem_unavailable_reason, unavailable_reason

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from sdhn_base.ros.topics import VIZ_EPISODES, VIZ_SCENE
 from sdhn_sim.recording.reader import (
     current_cdr,
     decode,
@@ -18,7 +19,6 @@ from sdhn_sim.recording.reader import (
     read_recording,
     write_with_viz,
 )
-from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_SCENE
 
 from .processes import ROS2
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sdhn_base.drops import DropKind
 from sdhn_policy.actor_core import ActorCore, Decision, Drop
-from sdhn_sim.drops import DropKind
 from sdhn_sim.lockstep import LockstepSim, SimConfig, SimConfigError
 
 from .test_lockstep_actor_core import blob, offer

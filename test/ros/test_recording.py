@@ -20,14 +20,14 @@ import rclpy
 from rclpy.context import Context
 from rosbags.highlevel import AnyReader
 
+from sdhn_base.ros import topics
+from sdhn_base.ros.qos import LATCHED, SENSOR, STEP
 from sdhn_sim.recording.reader import (
     read_recording,
     summaries_from_messages,
     summaries_from_states,
 )
 from sdhn_sim.recording.writer import McapRosWriter
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
 from .processes import ROS2, node_processes
 from .team_stream import ENV, hypergraph_message, team_stream, weights_message

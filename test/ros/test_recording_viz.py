@@ -27,12 +27,12 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 from rclpy.context import Context
 
+from sdhn_base.ros.qos import SENSOR
 from sdhn_msgs.msg import Hypergraph
 from sdhn_policy.weights import ActorSpec, encode_actor, save_actor_file
 from sdhn_sim.envs import make_single_env
 from sdhn_sim.recording.reader import decode, read_recording
 from sdhn_sim.recording.writer import McapRosWriter
-from sdhn_sim.ros.qos import SENSOR
 from sdhn_sim.viz.draw import map_to_cell
 
 from .deploy_helpers import TEAM_NS, actor_cmd, sim_cmd

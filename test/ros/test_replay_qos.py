@@ -15,9 +15,9 @@ from rclpy.context import Context
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
+from sdhn_base.ros import topics
+from sdhn_base.ros.qos import LATCHED, SENSOR, STEP
 from sdhn_sim.recording.writer import McapRosWriter
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
 from .processes import ROS2, node_processes
 from .team_stream import weights_message
@@ -29,7 +29,7 @@ import sys, time, rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from sdhn_msgs.msg import PolicyWeights
-from sdhn_sim.ros.qos import LATCHED
+from sdhn_base.ros.qos import LATCHED
 c = Context(); rclpy.init(context=c)
 n = rclpy.create_node("late_joiner", context=c)
 ex = SingleThreadedExecutor(context=c); ex.add_node(n)

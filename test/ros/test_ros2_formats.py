@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import yaml
 
+from sdhn_bringup.ros2_bag import file_size
+from sdhn_bringup.ros2_topic import RateWindow
+from sdhn_bringup.ros2_yaml import field_value, to_yaml
 from sdhn_msgs.msg import PolicyWeights, RobotObservation
-from sdhn_sim.ros2_bag import file_size
-from sdhn_sim.ros2_topic import RateWindow
-from sdhn_sim.ros2_yaml import field_value, to_yaml
 
 from .processes import ROS2
 

@@ -23,8 +23,8 @@ from rclpy.context import Context
 from rclpy.qos import QoSProfile
 from rosbags.highlevel import AnyReader
 
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
+from sdhn_base.ros import topics
+from sdhn_base.ros.qos import LATCHED, SENSOR, STEP
 
 from .processes import ROS2, node_processes
 from .team_stream import hypergraph_message, team_stream, weights_message

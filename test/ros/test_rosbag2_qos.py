@@ -12,6 +12,7 @@ import yaml
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from sdhn_base.ros.qos import LATCHED, LATCHED_RECORDER, SENSOR, STEP
 from sdhn_sim.recording.rosbag2 import (
     QOS_KEYS,
     QosFormatError,
@@ -21,7 +22,6 @@ from sdhn_sim.recording.rosbag2 import (
     qos_dict,
     replay_profile,
 )
-from sdhn_sim.ros.qos import LATCHED, LATCHED_RECORDER, SENSOR, STEP
 
 # What the graph reports for a remote publisher of LATCHED: no history, no depth.
 DISCOVERED_LATCHED = QoSProfile(history=HistoryPolicy.UNKNOWN, depth=0,

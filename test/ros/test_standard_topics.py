@@ -11,9 +11,9 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+from sdhn_base.ros import topics
 from sdhn_sim.envs.maif import ACTION_DELTAS
 from sdhn_sim.poses import cell_center
-from sdhn_sim.ros import topics
 
 from .deploy_helpers import actor_cmd, sim_cmd, stop_all
 from .processes import ROS2, node_processes
@@ -43,8 +43,8 @@ def test_diagnostics_poses_and_target_poses(weights: Path, tmp_path: Path) -> No
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile
 
+    from sdhn_base.ros.qos import DIAGNOSTICS, POSES, STEP
     from sdhn_msgs.msg import RobotAction, TeamState
-    from sdhn_sim.ros.qos import DIAGNOSTICS, POSES, STEP
 
     deep = QoSProfile(history=STEP.history, depth=65536, reliability=STEP.reliability,
                       durability=STEP.durability)

@@ -1,10 +1,10 @@
-"""The one team-namespace rule and the topic names (sdhn_sim.ros.topics), without ROS."""
+"""The one team-namespace rule and the topic names (sdhn_base.ros.topics), without ROS."""
 
 from __future__ import annotations
 
 import pytest
 
-from sdhn_sim.ros import topics
+from sdhn_base.ros import topics
 
 
 @pytest.mark.parametrize("ns", ["/sdhn", "/lab/team_2", "/a", "/sdhn_launch_on_failure"])

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_sim.drops import DropKind
-from sdhn_sim.ros.status import EventReader
+from sdhn_base.drops import DropKind
+from sdhn_base.ros.status import EventReader
 
 from .deploy_helpers import actor_cmd, sim_cmd, status_watched_trainer
 from .processes import node_processes

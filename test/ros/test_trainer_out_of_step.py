@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import STEP
+from sdhn_base.ros import topics
+from sdhn_base.ros.qos import STEP
 from sdhn_train.trainer_node import OUT_OF_STEP_STEPS
 
 from .deploy_helpers import status_watched_trainer

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
 from sdhn_train import transitions as tr
 from sdhn_train.transitions import TransitionAssembler
 

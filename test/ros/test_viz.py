@@ -26,10 +26,10 @@ import websockets
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from rclpy.context import Context
 
+from sdhn_base.ros import topics
+from sdhn_base.ros.qos import SENSOR, STEP
 from sdhn_msgs.msg import EpisodeSummary, Hypergraph, TeamState
 from sdhn_sim.envs import make_single_env
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.qos import SENSOR, STEP
 from sdhn_sim.viz.draw import map_to_cell
 
 from .processes import ROS2, NodeProcess, node_processes

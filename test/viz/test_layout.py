@@ -6,7 +6,7 @@ import json
 import re
 from pathlib import Path
 
-from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
+from sdhn_base.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.viz.channels import EPISODE_SCHEMA, METRICS_SCHEMA
 
 LAYOUT = Path(__file__).resolve().parents[2] / "configs" / "foxglove" / "sdhn_layout.json"
@@ -31,7 +31,7 @@ def test_layout_references_served_topics_and_fields() -> None:
 def test_layout_shows_the_standard_topics() -> None:
     """Beside the viz channels, the layout shows the standard topics the nodes publish: every
     node's /diagnostics (a diagnostics panel) and the default team's robot poses in the 3D view."""
-    from sdhn_sim.ros.topics import DEFAULT_TEAM_NS, DIAGNOSTICS, POSES, absolute
+    from sdhn_base.ros.topics import DEFAULT_TEAM_NS, DIAGNOSTICS, POSES, absolute
 
     layout = json.loads(LAYOUT.read_text())
     panels: list[dict] = []

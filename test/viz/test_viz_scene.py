@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
+from sdhn_base.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.envs import load_instances, make_single_env
-from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.viz.draw import cell_center, map_to_cell
 from sdhn_sim.viz.renderer import VizRenderer
 from sdhn_sim.viz.world import BadInput, MaifMap, parse_team_state, world_info

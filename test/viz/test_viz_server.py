@@ -20,7 +20,7 @@ import pytest
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from sdhn_sim.ros.topics import VIZ_METRICS, VIZ_SCENE
+from sdhn_base.ros.topics import VIZ_METRICS, VIZ_SCENE
 from sdhn_sim.viz.channels import VIZ_TOPICS, channel_specs
 from sdhn_sim.viz.server import SUBPROTOCOL, VizServer
 

@@ -3,7 +3,7 @@
     python -m sdhn_bringup.params_doc            # rewrite the tables in docs/parameters.md
     python -m sdhn_bringup.params_doc --check    # exit 1 when the page is out of date
 
-Each node declares its parameters once, typed and ranged (``sdhn_sim.ros.params``; the trainer's
+Each node declares its parameters once, typed and ranged (``sdhn_base.ros.params``; the trainer's
 ``trainer_node._descriptors``); this module reads those declarations, so the page cannot drift
 from what the nodes accept (a test runs ``--check``).
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Iterator
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -76,14 +76,11 @@ def nodes() -> Iterator[tuple[str, str, list[Row]]]:
     from sdhn_sim.recording.recorder_node import PARAMETERS as RECORDER
     from sdhn_sim.sim_node import PARAMETERS as SIM
     from sdhn_sim.viz.viz_node import PARAMETERS as VIZ
-    from sdhn_train.trainer_node import TrainerParams, _descriptors
+    from sdhn_train.trainer_node import PARAMETERS as TRAINER
 
     yield "sim", "sdhn_sim sim", _rows(SIM)
     yield "actor", "sdhn_policy actor", _rows(ACTOR)
-    defaults = TrainerParams()
-    trainer = {f.name: (getattr(defaults, f.name), _descriptors()[f.name])
-               for f in fields(TrainerParams)}
-    yield "trainer", "sdhn_train trainer", _rows(trainer)
+    yield "trainer", "sdhn_train trainer", _rows(TRAINER)
     yield "recorder", "sdhn_sim recorder", _rows(RECORDER)
     yield "viz", "sdhn_sim viz", [*_rows(VIZ), VIZ_MAX_RATE]
 

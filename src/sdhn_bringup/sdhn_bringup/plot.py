@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from sdhn_sim.episode import EpisodeResult
+from sdhn_train.metrics_file import metrics_path, read_series
 
 
 def read_episodes(run_dir: Path) -> list[EpisodeResult]:
@@ -47,11 +48,14 @@ def read_train_curve(train_run: Path,
             steps += e.length
             points.append((steps, e.episode_return))
         return points
-    path = train_run / "metrics.csv"
+    path = metrics_path(train_run)
     if not path.exists():
         return []
-    rows = csv.DictReader(path.read_text().splitlines())
-    return [(int(r["step"]), float(r["value"])) for r in rows if r["tag"] == tag]
+    series = read_series(path)
+    if tag not in series:
+        return []
+    at, values = series[tag]
+    return [(int(s), float(v)) for s, v in zip(at, values, strict=True)]
 
 
 def plot_run(run_dir: Path, train_run: Path | None = None, out: Path | None = None) -> Path:

@@ -9,7 +9,7 @@ output in ``<run_dir>/logs/<name>.log``. Every child reads its ROS parameters fr
 docs/parameters.md). While it runs it prints a status line (processes ready,
 episode, step rate, last success/makespan and return, weights version) and appends every finished
 episode to ``<run_dir>/episodes.csv``. Both come as data, never from log text
-(:mod:`sdhn_sim.ros.status`): a child is ready once its ready file
+(:mod:`sdhn_base.ros.status`): a child is ready once its ready file
 ``<run_dir>/status/<name>.ready`` exists (written by the node runner), and the simulator appends
 its events (started, progress, each episode's result) to ``<run_dir>/status/sim-events.jsonl``.
 A child that exits is reported; under ``restart.policy: on-failure`` a child that failed (non-zero
@@ -96,24 +96,25 @@ from typing import IO, Any
 
 import yaml
 
+from sdhn_base.errors import ConfigError
+from sdhn_base.litter import clean_fastdds_shm
+from sdhn_base.overrides import OverrideError, set_field
+from sdhn_base.ros import topics
+from sdhn_base.ros.status import READY_ENV, EventReader, read_statuses
+from sdhn_base.yaml_io import YamlError, load_yaml
 from sdhn_sim.data_files import fastdds_profile
 from sdhn_sim.envs.conditions import ConditionsError, conditions_from_dict
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names, team_size
 from sdhn_sim.episode import CSV_FIELDS, EpisodeResult
 from sdhn_sim.faults import FaultsError, faults_text, parse_faults
-from sdhn_sim.litter import clean_fastdds_shm
 from sdhn_sim.lockstep import CLOCKS
-from sdhn_sim.overrides import OverrideError, set_field
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.status import READY_ENV, EventReader, read_statuses
-from sdhn_sim.yaml_io import YamlError, load_yaml
 
 MODES = ("deploy", "train")
 RESTART_POLICIES = ("never", "on-failure")
 DISCOVERY_MODES = ("simple", "server")
 
 
-class LaunchConfigError(ValueError):
+class LaunchConfigError(ConfigError):
     """Invalid launch configuration; the message names the field and the allowed values."""
 
 
@@ -571,7 +572,7 @@ class ChildSpec:
         script = Path(sys.executable).parent / self.executable
         if script.is_file() and _entry_package(script) == self.package:
             return [*host, str(script), "--ros-args", *ros_args]
-        return [*host, sys.executable, "-m", "sdhn_sim.ros2_cli", "run", self.package,
+        return [*host, sys.executable, "-m", "sdhn_bringup.ros2_cli", "run", self.package,
                 self.executable, "--ros-args", *ros_args]
 
 
@@ -774,7 +775,7 @@ class Child:
 
 def node_status_parts(statuses: dict[str, dict[str, Any]]) -> list[str]:
     """What the nodes' status files add to the status line: the trainer's transitions, and every
-    node's dropped data per cause (``sdhn_sim.ros.status``)."""
+    node's dropped data per cause (``sdhn_base.ros.status``)."""
     parts = []
     trainer = statuses.get("trainer")
     if trainer is not None:
@@ -831,7 +832,7 @@ class Launcher:
         self.t_steps0: float | None = None
         self.position = (0, 0)
         self._tty = out.isatty()
-        self.lifecycle: Any = None  # sdhn_sim.ros.lifecycle_client.LifecycleClient when managed
+        self.lifecycle: Any = None  # sdhn_base.ros.lifecycle_client.LifecycleClient when managed
         if any(c.spec.managed for c in self.children):
             os.environ.setdefault("ROS_LOG_DIR", env["ROS_LOG_DIR"])
             for key, value in discovery_env(cfg).items():  # the launcher's own participant
@@ -839,7 +840,7 @@ class Launcher:
                     os.environ[key] = value
                 else:
                     os.environ.pop(key, None)
-            from sdhn_sim.ros.lifecycle_client import LifecycleClient  # rclpy only when needed
+            from sdhn_base.ros.lifecycle_client import LifecycleClient  # rclpy only when needed
 
             self.lifecycle = LifecycleClient("launcher")
 
@@ -866,7 +867,7 @@ class Launcher:
         return " | ".join(parts)
 
     def write_config(self) -> None:
-        tmp = self.run_dir / f".launch.yaml.{os.getpid()}.w.tmp"  # sdhn_sim.litter
+        tmp = self.run_dir / f".launch.yaml.{os.getpid()}.w.tmp"  # sdhn_base.litter
         tmp.write_text(yaml.safe_dump(dataclasses.asdict(self.cfg), sort_keys=False))
         os.replace(tmp, self.run_dir / "launch.yaml")
 
@@ -878,7 +879,7 @@ class Launcher:
             trainer = topics.absolute(self.cfg.team_ns, "trainer")
             files[RESUME_FILE] = {trainer: {RESUME_PARAMETER: True}}
         for name, nodes in files.items():
-            tmp = self.run_dir / f".{name}.{os.getpid()}.w.tmp"  # sdhn_sim.litter
+            tmp = self.run_dir / f".{name}.{os.getpid()}.w.tmp"  # sdhn_base.litter
             tmp.write_text(params_file_text(nodes))
             os.replace(tmp, self.run_dir / name)
 
@@ -1127,7 +1128,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.print_config:
         print(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False))
         return 0
-    clean_fastdds_shm()  # segments of killed participants (sdhn_sim.litter)
+    clean_fastdds_shm()  # segments of killed participants (sdhn_base.litter)
     run_dir = Path(cfg.run_dir)
     if run_dir.exists() and (not run_dir.is_dir()
                              or any((run_dir / f).exists() for f in RUN_FILES)):

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from sdhn_base.drops import DropKind
 from sdhn_policy.actor_runtime import (
     ActorRuntime,
     NonFiniteLogitsError,
@@ -29,7 +30,6 @@ from sdhn_policy.actor_runtime import (
 from sdhn_policy.dead_reckoning import DeadReckoner
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
-from sdhn_sim.drops import DropKind
 from sdhn_sim.envs.maif import OBS_SIZE as MAIF_OBS_SIZE
 
 MAX_WEIGHTS_BYTES = 64 * 1024 * 1024

@@ -23,9 +23,9 @@ from collections.abc import Sequence
 
 from rclpy.context import Context
 
+from sdhn_base.ros import topics
+from sdhn_base.ros.runner import ConfigError, run_node
 from sdhn_policy.actor_node import ActorNode, _on_stop, make_actor
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.runner import ConfigError, run_node
 
 
 def parse_robots(text: str) -> range:

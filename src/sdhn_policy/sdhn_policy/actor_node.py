@@ -3,7 +3,7 @@
 Launched as ``actor --ros-args -r __ns:=/sdhn/robot_<i> -p team_ns:=/sdhn -p robot_id:=<i>
 -p num_robots:=<N>``. Subscribes to its own ``robot_<i>/obs`` and to the team's ``policy/weights``
 (latched), publishes ``robot_<i>/action``, all under ``team_ns`` (names from
-:mod:`sdhn_sim.ros.topics`; absolute, because the weights topic is the team's, not the robot's).
+:mod:`sdhn_base.ros.topics`; absolute, because the weights topic is the team's, not the robot's).
 Nothing else: an actor never sees another robot's observation or the global state. The decision
 logic lives in :mod:`sdhn_policy.actor_core`; this file never imports torch.
 
@@ -44,11 +44,7 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 
-from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
-from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
-from sdhn_policy.stall_breaker import StallRule
-from sdhn_policy.weights import WeightsError
-from sdhn_sim.diagnostics import (
+from sdhn_base.diagnostics import (
     OK,
     WARN,
     Report,
@@ -57,14 +53,18 @@ from sdhn_sim.diagnostics import (
     drop_values,
     make_report,
 )
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
+from sdhn_base.ros import cdr, topics
+from sdhn_base.ros.diagnostics import DiagnosticsPublisher
+from sdhn_base.ros.params import boolean, declare, floating, integer, string
+from sdhn_base.ros.qos import LATCHED, POSES, STEP, STEP_NEWEST
+from sdhn_base.ros.runner import ConfigError, run_node
+from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
+from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
+from sdhn_policy.stall_breaker import StallRule
+from sdhn_policy.weights import WeightsError
 from sdhn_sim.envs.registry import env_names
 from sdhn_sim.poses import FRAME_ID, target_reader, yaw_quaternion
-from sdhn_sim.ros import cdr, topics
-from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
-from sdhn_sim.ros.params import boolean, declare, floating, integer, string
-from sdhn_sim.ros.qos import LATCHED, POSES, STEP, STEP_NEWEST
-from sdhn_sim.ros.runner import ConfigError, run_node
 
 PARAMETERS = {
     "team_ns": (topics.DEFAULT_TEAM_NS, string(f"team namespace; {topics.TEAM_NS_RULE}")),
@@ -149,7 +149,7 @@ class ActorNode(LifecycleNode):
         self._target = PoseStamped()
         self._target.header.frame_id = FRAME_ID
         self.drops: Counter[str] = Counter()
-        self.failed_reason = ""  # set when this actor can never act (sdhn_sim.ros.runner)
+        self.failed_reason = ""  # set when this actor can never act (sdhn_base.ros.runner)
         self.answered = False  # any observation answered yet
         self.unfit = 0  # observations of the wrong length before the first answer
         self.weights_sub: Subscription | None = None
@@ -286,7 +286,7 @@ class ActorNode(LifecycleNode):
             # Not active: an observation the executor had queued before deactivate closed the
             # subscription still arrives here once; the simulator counts the step as missed.
             return
-        # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per step.
+        # Raw CDR read at its offsets (sdhn_base.ros.cdr): no Python message per step.
         try:
             msg = cdr.read_observation(data)
         except cdr.CdrError as e:

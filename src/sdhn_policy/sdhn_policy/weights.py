@@ -32,10 +32,10 @@ import numpy.typing as npt
 from safetensors.numpy import load as st_load
 from safetensors.numpy import save as st_save
 
+from sdhn_base import bounded_json
+from sdhn_base.drops import DropKind
+from sdhn_base.litter import clean_stale_tmp
 from sdhn_policy.features import check_transform, feature_size
-from sdhn_sim import bounded_json
-from sdhn_sim.drops import DropKind
-from sdhn_sim.litter import clean_stale_tmp
 
 ACTOR_FORMAT = "sdhn-actor/2"
 """Format string of the actor blob; bump the number on any incompatible change.
@@ -321,7 +321,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # The writer's pid is in the name, so a later start can tell a killed writer's leftover
-    # (sdhn_sim.litter.clean_stale_tmp, run below after every write) from a live one's.
+    # (sdhn_base.litter.clean_stale_tmp, run below after every write) from a live one's.
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp",
                                dir=path.parent)
     try:

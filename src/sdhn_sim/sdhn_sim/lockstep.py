@@ -54,7 +54,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
+from sdhn_base.errors import ConfigError
 from sdhn_sim.envs import make_single_env
 from sdhn_sim.envs.api import EpisodeStats
 from sdhn_sim.envs.conditions import (
@@ -73,7 +74,7 @@ from sdhn_sim.faults import Fault, FaultsError, parse_faults
 STAY = 0
 CLOCKS = ("lockstep", "realtime")
 
-class SimConfigError(ValueError):
+class SimConfigError(ConfigError):
     """A simulator setting is invalid; the message names it and the allowed values."""
 
 

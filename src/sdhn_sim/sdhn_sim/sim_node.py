@@ -1,7 +1,7 @@
 """Simulator node ``sdhn_sim sim``: one environment stepped in lock-step with N actor processes.
 
 Runs in the team namespace (``/sdhn``, or ``-r __ns:=/other``) and names its topics relative to it
-(:mod:`sdhn_sim.ros.topics`): publishes ``robot_<i>/obs`` (one per robot), ``state`` and
+(:mod:`sdhn_base.ros.topics`): publishes ``robot_<i>/obs`` (one per robot), ``state`` and
 ``episode``; subscribes to every ``robot_<i>/action``. Before step 0 it waits
 until every obs topic has a subscriber (plus ``extra_subscribers``) and every action topic a
 publisher, then: publish step t, wait for the N actions of step t or ``step_deadline`` (missing ->
@@ -10,7 +10,7 @@ stay, counted, logged), step, publish step t+1. The lock-step logic lives in
 stops by itself with exit code 0; it exits 1 when the actors are not all matched within
 ``start_timeout``. With ``events_file`` set it also appends its events (started, progress, each
 episode's result, done, and its totals when it stops) to that file as JSON lines for a supervisor
-(:mod:`sdhn_sim.ros.status`).
+(:mod:`sdhn_base.ros.status`).
 
 With ``clock:=realtime`` the world does not wait: once every robot has answered step 0 (the same
 start handshake), a timer steps it ``rate_hz`` times a second with each robot's newest action
@@ -42,20 +42,20 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.timer import Timer
 
+from sdhn_base.diagnostics import Report, WindowCounts, drop_values, make_report
+from sdhn_base.drops import DropKind
+from sdhn_base.ros import cdr, topics
+from sdhn_base.ros.diagnostics import DiagnosticsPublisher
+from sdhn_base.ros.params import declare, floating, integer, string
+from sdhn_base.ros.qos import POSES, STEP
+from sdhn_base.ros.runner import ConfigError, run_node
+from sdhn_base.ros.status import EventWriter
 from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
-from sdhn_sim.diagnostics import Report, WindowCounts, drop_values, make_report
-from sdhn_sim.drops import DropKind
 from sdhn_sim.envs.registry import env_names, team_size
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.faults import FaultsError, parse_faults
 from sdhn_sim.lockstep import Frame, LockstepSim, SimConfig, SimConfigError
 from sdhn_sim.poses import FRAME_ID, cell_center
-from sdhn_sim.ros import cdr, topics
-from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
-from sdhn_sim.ros.params import declare, floating, integer, string
-from sdhn_sim.ros.qos import POSES, STEP
-from sdhn_sim.ros.runner import ConfigError, run_node
-from sdhn_sim.ros.status import EventWriter
 
 LOG_EVERY_S = 2.0  # period of the progress line
 
@@ -213,7 +213,7 @@ class SimNode(Node):
     # -- lock-step -----------------------------------------------------------------------------
 
     def on_action(self, robot: int, data: bytes) -> None:
-        # Raw CDR read at its offsets (sdhn_sim.ros.cdr): no Python message per action.
+        # Raw CDR read at its offsets (sdhn_base.ros.cdr): no Python message per action.
         if not self.stepping:
             self.drop(DropKind.NOT_STARTED,
                       f"action from robot {robot} before step 0 or after the end")

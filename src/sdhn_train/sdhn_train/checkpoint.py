@@ -23,8 +23,8 @@ import torch
 from safetensors.numpy import load as st_load
 from safetensors.numpy import save as st_save
 
+from sdhn_base import bounded_json
 from sdhn_policy.weights import atomic_write_bytes, sha256_hex
-from sdhn_sim import bounded_json
 from sdhn_train.learners.base import Arrays, JsonDict, Learner
 
 CHECKPOINT_FORMAT = "sdhn-checkpoint/1"

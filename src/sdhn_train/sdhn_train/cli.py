@@ -46,7 +46,8 @@ SHORTCUTS = {  # --flag -> config field
 # Other files (an experiment runner's spec or config beside it) do not make it one.
 RUN_FILES = ("checkpoints", "config.yaml", "metrics.csv", "actor.safetensors", "summary.json")
 # Fields a resume may change: they change neither the networks, the optimiser nor the data.
-# log.root: a log directory carried to another machine (analysis/carry.py) resumes from there.
+# log.root: a log directory carried to another machine (sdhn_experiments/carry.py) resumes
+# from there.
 RESUME_SAFE = frozenset({"train.total_steps", "log.checkpoint_interval", "log.keep_checkpoints",
                          "log.actor_marks",
                          "log.progress", "log.root",

@@ -7,7 +7,7 @@ the algorithm registry. ``cfg.section(SDHNConfig)`` is the typed way to one of t
 also works, untyped).
 
 Load order: defaults <- YAML (``--config``) <- CLI shortcuts (``--env`` ...) <- ``--set a.b=v``,
-all through ``sdhn_sim.overrides``. ``validate`` runs before anything starts and raises
+all through ``sdhn_base.overrides``. ``validate`` runs before anything starts and raises
 ConfigError naming the field and the allowed values.
 """
 
@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from sdhn_base import overrides, yaml_io
 from sdhn_policy.features import TRANSFORMS
-from sdhn_sim import overrides, yaml_io
 from sdhn_sim.envs.maif import MAIF_REWARDS
 from sdhn_sim.envs.registry import TRAINING_SETS, env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS, get_algorithm
@@ -120,7 +120,7 @@ _YAML_ALLOWED = "allowed: a YAML file holding {section: {field: value}}"
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML mapping; ConfigError (one line) for a missing, unreadable, binary or malformed
-    file, a key given twice or an alias bomb (``sdhn_sim.yaml_io``)."""
+    file, a key given twice or an alias bomb (``sdhn_base.yaml_io``)."""
     try:
         data = yaml_io.load_yaml(Path(path), what="config") or {}
     except yaml_io.YamlError as e:

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
 from sdhn_train.rollout import Rollout
 from sdhn_train.transitions import AssembledRollout
 
@@ -272,7 +272,8 @@ def learner_main(inbox: Connection, outbox: Connection, params: dict[str, Any], 
     from sdhn_train.env_features import resolve_features, wrap_features
     from sdhn_train.envinfo import EnvInfo
     from sdhn_train.learners.base import NonFiniteLossError
-    from sdhn_train.runs import MetricsLog, episode_metrics
+    from sdhn_train.metrics_file import MetricsLog
+    from sdhn_train.runs import episode_metrics
     from sdhn_train.stream_learner import StreamLearner
 
     cfg = Config()

@@ -1,62 +1,21 @@
 """What every training run shares, in-process or on the ROS trainer node: seeding (the one place),
-the metrics log, episode metrics, and the P_H snapshots ``sdhn_train.analysis`` plots.
+episode metrics, and the P_H snapshots ``sdhn_experiments`` plots (the metrics log itself:
+:mod:`sdhn_train.metrics_file`).
 """
 
 from __future__ import annotations
 
-import csv
 import ctypes
-import io
-import lzma
 import random
-import time
 from pathlib import Path
-from typing import Any, TextIO
 
 import numpy as np
 import torch
 
-from sdhn_policy.weights import atomic_write_bytes
 from sdhn_sim.envs.api import EpisodeStats
 from sdhn_train.learners.base import HypergraphSamples
 
 PH_DIR = "hypergraph"  # <run>/hypergraph/ph_<step>.npz
-METRICS_FILE = "metrics.csv"
-PACKED_SUFFIX = ".xz"
-"""A run carried in the repository keeps its text logs xz-compressed (``metrics.csv.xz``,
-sdhn_train.analysis.carry); the readers below take either form, so a report reads a carried
-suite as it reads a log directory."""
-
-
-def packed(path: Path) -> Path:
-    """The compressed twin of a run file (``metrics.csv`` -> ``metrics.csv.xz``)."""
-    return path.with_name(path.name + PACKED_SUFFIX)
-
-
-def run_file(path: Path) -> Path:
-    """``path`` if it exists, else its compressed twin if that does (else ``path``, for the
-    caller's own "missing" message)."""
-    return packed(path) if not path.exists() and packed(path).exists() else path
-
-
-def metrics_file(run_dir: Path) -> Path:
-    """A run's metrics log as it is on disk: ``metrics.csv``, or ``metrics.csv.xz`` carried."""
-    return run_file(run_dir / METRICS_FILE)
-
-
-def open_run_text(path: Path) -> TextIO:
-    """A run's text file for reading (UTF-8, CSV newlines), decompressed if it is packed; with
-    ``run_file``'s fallback, so ``open_run_text(run / "metrics.csv")`` reads a carried copy."""
-    path = run_file(path)
-    if path.name.endswith(PACKED_SUFFIX):
-        return lzma.open(path, "rt", encoding="utf-8", newline="")
-    return open(path, encoding="utf-8", newline="")
-
-
-def read_run_text(path: Path) -> str:
-    with open_run_text(path) as f:
-        return f.read()
-
 
 def seed_everything(seed: int, deterministic: bool, threads: int) -> np.random.Generator:
     """The one place that seeds: Python, NumPy (returned generator), torch."""
@@ -108,64 +67,6 @@ def episode_metrics(prefix: str, episodes: list[EpisodeStats]) -> dict[str, floa
     if done:  # makespan of completed episodes only (NC episodes have none)
         out[f"{prefix}/makespan"] = float(np.mean(done))
     return out
-
-
-def trim_metrics(run_dir: Path, step: int) -> int:
-    """Drop rows of ``<run>/metrics.csv`` logged after ``step`` (the checkpoint a resume starts
-    from), so the resumed run's rows do not duplicate them. Atomic; returns the rows dropped."""
-    path = run_dir / "metrics.csv"
-    if not path.is_file():
-        return 0
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    if not rows:
-        return 0
-    # A row cut off by a crash (fewer columns, a half-written value) goes too: the resumed
-    # run appends after it, and a reader would take it for data.
-    keep = [rows[0]] + [r for r in rows[1:] if len(r) == len(rows[0]) and r[0].isdigit()
-                        and _is_number(r[-1]) and int(r[0]) <= step]
-    dropped = len(rows) - len(keep)
-    if dropped:
-        buf = io.StringIO()
-        csv.writer(buf).writerows(keep)
-        atomic_write_bytes(path, buf.getvalue().encode())
-    return dropped
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-class MetricsLog:
-    """CSV (long format: step, wall_time, tag, value) + optional TensorBoard."""
-
-    def __init__(self, run_dir: Path, tensorboard: bool) -> None:
-        self._f: TextIO = open(run_dir / "metrics.csv", "a", newline="")  # noqa: SIM115
-        self._csv = csv.writer(self._f)
-        if self._f.tell() == 0:
-            self._csv.writerow(["step", "wall_time", "tag", "value"])
-        self._tb: Any = None
-        if tensorboard:
-            from torch.utils.tensorboard import SummaryWriter
-
-            self._tb = SummaryWriter(str(run_dir))
-
-    def write(self, step: int, metrics: dict[str, float]) -> None:
-        now = time.time()
-        for tag, value in metrics.items():
-            self._csv.writerow([step, f"{now:.3f}", tag, f"{value:.6g}"])
-            if self._tb is not None:
-                self._tb.add_scalar(tag, value, step)
-        self._f.flush()
-
-    def close(self) -> None:
-        self._f.close()
-        if self._tb is not None:
-            self._tb.close()
 
 
 def save_ph_snapshot(run_dir: Path, step: int, samples: HypergraphSamples | None) -> Path | None:

@@ -11,9 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-
-class ConfigError(ValueError):
-    """Invalid configuration; the message names the field and the allowed values."""
+from sdhn_base.errors import ConfigError
 
 
 def opt(default: Any, help: str) -> Any:

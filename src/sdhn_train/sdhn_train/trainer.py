@@ -24,6 +24,7 @@ import yaml
 from sdhn_policy.weights import atomic_write_bytes, save_actor_file
 from sdhn_sim.envs.api import BatchedEnv, EpisodeStats, reward_name
 from sdhn_train import checkpoint as ckpt
+from sdhn_train import metrics_file
 from sdhn_train.algorithms.registry import get_algorithm
 from sdhn_train.collector import RolloutCollector
 from sdhn_train.config import Config
@@ -34,15 +35,14 @@ from sdhn_train.envinfo import EnvInfo
 from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs
 from sdhn_train.learners.base import Learner, NonFiniteLossError
 from sdhn_train.learners.ppo import PPOLearner
+from sdhn_train.metrics_file import MetricsLog
 from sdhn_train.normalize import RewardNormalizer
 from sdhn_train.rollout import Rollout
 from sdhn_train.runs import (
-    MetricsLog,
     episode_metrics,
     retain_freed_memory,
     save_ph_snapshot,
     seed_everything,
-    trim_metrics,
 )
 from sdhn_train.sections import ConfigError
 from sdhn_train.warm_start import load_actor_into
@@ -113,7 +113,7 @@ class Trainer:
                             if cfg.ppo.normalize_rewards else None)
         self.global_step = 0
         self.last_checkpoint: Path | None = None
-        self.last_rollout: Rollout | None = None  # for P_H snapshots (sdhn_train.analysis)
+        self.last_rollout: Rollout | None = None  # for P_H snapshots (sdhn_experiments)
         self.run_dir = run_dir or default_run_dir(cfg)
         self.stop_requested = False  # set by SIGINT / SIGTERM: checkpoint, then stop
 
@@ -235,7 +235,7 @@ class Trainer:
         cfg = self.cfg
         if resume is not None:  # nothing is written into the run before its checkpoint loaded
             self.load_checkpoint(resume)
-            dropped = trim_metrics(self.run_dir, self.global_step)
+            dropped = metrics_file.trim(self.run_dir / metrics_file.FILE, self.global_step)
             print(f"resumed from {resume} at step {self.global_step}"
                   + (f" (dropped {dropped} metric rows logged after it)" if dropped else ""),
                   file=out)

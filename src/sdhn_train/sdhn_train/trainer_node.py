@@ -12,9 +12,9 @@ long, cannot delay them. Version 1 (or the resumed version) is published at star
 
 Every dropped message, step or rollout is counted per cause and logged once per cause; the counts,
 the transitions assembled and learned, and the executor's longest stall go to
-``<status dir>/trainer.status.json`` (``sdhn_sim.ros.status``) for the launcher's status line,
+``<status dir>/trainer.status.json`` (``sdhn_base.ros.status``) for the launcher's status line,
 and once a second to ``/diagnostics`` (queue depth, drops per cause, weights version;
-``sdhn_sim.diagnostics``).
+``sdhn_base.diagnostics``).
 
 Parameters (typed, with descriptors): env and algo (a name of the env / algorithm registry), seed
 (>= 0), run_dir ("" = runs/<env>__<algo>__<seed>__ros-<time>), rollout_steps (>= 2), config
@@ -24,7 +24,7 @@ from, as the in-process ``train.total_steps``; 0 = until stopped: once the learn
 that many, later rollouts are counted, not learned; the simulator goes on until stopped). The YAML's
 env/algo/seed/rollout length are replaced by the parameters; the ROS stream is one environment,
 so env.num_envs and ppo.num_minibatches are 1. Checking them, merging the config and resuming are
-plain functions below; the constructor only declares.
+plain functions and methods below (``configure``, ``start``); the constructor declares.
 """
 
 from __future__ import annotations
@@ -40,13 +40,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rcl_interfaces.msg import IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.subscription import Subscription
 from rclpy.time import Time
 
+from sdhn_base.diagnostics import Report, WindowCounts, drop_values, make_report
+from sdhn_base.drops import DropKind, describe
+from sdhn_base.ros import cdr, params, topics
+from sdhn_base.ros.diagnostics import DiagnosticsPublisher
+from sdhn_base.ros.qos import LATCHED, SENSOR, STEP, STEP_DEPTH
+from sdhn_base.ros.runner import ConfigError, run_node
+from sdhn_base.ros.status import write_status
 from sdhn_msgs.msg import (
     EpisodeSummary,
     Hypergraph,
@@ -55,15 +61,8 @@ from sdhn_msgs.msg import (
     RobotObservation,
     TeamState,
 )
-from sdhn_sim.diagnostics import Report, WindowCounts, drop_values, make_report
-from sdhn_sim.drops import DropKind, describe
 from sdhn_sim.envs.registry import env_names, make_env
 from sdhn_sim.episode import EpisodeResult
-from sdhn_sim.ros import cdr, topics
-from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
-from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP, STEP_DEPTH
-from sdhn_sim.ros.runner import ConfigError, run_node
-from sdhn_sim.ros.status import write_status
 from sdhn_train import checkpoint as ckpt
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, apply_dict, load_yaml, validate
@@ -91,56 +90,51 @@ RESUBSCRIBE_EVERY_S = 10.0
 
 @dataclass(frozen=True)
 class TrainerParams:
-    env: str = "maif-10"
-    algo: str = "sdhn"
-    seed: int = 1
-    run_dir: str = ""
-    rollout_steps: int = 128
-    config: str = ""
-    resume: bool = False
-    team_ns: str = "/sdhn"
-    init_from: str = ""
-    total_steps: int = 0
+    """The node's parameters once declared (names, defaults and descriptors: PARAMETERS)."""
+
+    env: str
+    algo: str
+    seed: int
+    run_dir: str
+    rollout_steps: int
+    config: str
+    resume: bool
+    team_ns: str
+    init_from: str
+    total_steps: int
 
 
-def _descriptors() -> dict[str, ParameterDescriptor]:
-    def d(text: str, constraints: str = "", low: int | None = None) -> ParameterDescriptor:
-        desc = ParameterDescriptor(description=text, additional_constraints=constraints,
-                                   read_only=True)
-        if low is not None:
-            desc.integer_range = [IntegerRange(from_value=low, to_value=2**31 - 1, step=1)]
-        return desc
-
-    return {
-        "env": d("environment", f"one of {', '.join(env_names())}"),
-        "algo": d("algorithm", f"one of {', '.join(ALGO_NAMES)}"),
-        "seed": d("seed of everything", "an integer >= 0", low=0),
-        "run_dir": d("run directory; '' = runs/<env>__<algo>__<seed>__ros-<time>", "a path"),
-        "rollout_steps": d("team steps per update", "an integer >= 2", low=2),
-        "config": d("YAML of the in-process trainer config; '' = defaults", "a YAML file or ''"),
-        "resume": d("continue from the newest checkpoint in run_dir", "true or false"),
-        "team_ns": d("namespace of the team's topics", "an absolute namespace like /sdhn"),
-        "init_from": d("exported actor (.safetensors) to start from, as actor.init_from of the "
-                       "in-process trainer; '' = fresh (a resume loads its checkpoint)",
-                       "an actor .safetensors file or ''"),
-        "total_steps": d("team steps to learn from; 0 = until stopped", "an integer >= 0",
-                         low=0),
-    }
+# Read-only: the learner's run is fixed once started (a change would need a new run_dir).
+PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
+    "env": ("maif-10", params.string("environment", read_only=True,
+                                     constraints=f"one of {', '.join(env_names())}")),
+    "algo": ("sdhn", params.string("algorithm", read_only=True,
+                                   constraints=f"one of {', '.join(ALGO_NAMES)}")),
+    "seed": (1, params.integer("seed of everything", 0, read_only=True,
+                               constraints="an integer >= 0")),
+    "run_dir": ("", params.string("run directory; '' = runs/<env>__<algo>__<seed>__ros-<time>",
+                                  read_only=True, constraints="a path")),
+    "rollout_steps": (128, params.integer("team steps per update", 2, read_only=True,
+                                          constraints="an integer >= 2")),
+    "config": ("", params.string("YAML of the in-process trainer config; '' = defaults",
+                                 read_only=True, constraints="a YAML file or ''")),
+    "resume": (False, params.boolean("continue from the newest checkpoint in run_dir",
+                                     read_only=True)),
+    "team_ns": ("/sdhn", params.string("namespace of the team's topics", read_only=True,
+                                       constraints="an absolute namespace like /sdhn")),
+    "init_from": ("", params.string(
+        "exported actor (.safetensors) to start from, as actor.init_from of the in-process "
+        "trainer; '' = fresh (a resume loads its checkpoint)", read_only=True,
+        constraints="an actor .safetensors file or ''")),
+    "total_steps": (0, params.integer("team steps to learn from; 0 = until stopped", 0,
+                                      read_only=True, constraints="an integer >= 0")),
+}
 
 
 def declare_parameters(node: Node) -> TrainerParams:
-    """Declare every parameter with its descriptor; a value of the wrong type or out of range is
-    a ConfigError naming the parameter and what is allowed."""
-    defaults = TrainerParams()
-    values: dict[str, Any] = {}
-    for name, desc in _descriptors().items():
-        try:
-            values[name] = node.declare_parameter(name, getattr(defaults, name), desc).value
-        except (InvalidParameterTypeException, InvalidParameterValueException) as e:
-            detail = str(e).splitlines()[0].split("Reason: ")[-1].removesuffix(f": {name}")[:160]
-            raise ConfigError(f"{name}: {detail}; allowed: {desc.additional_constraints}"
-                              ) from None
-    return TrainerParams(**values)
+    """Declare every parameter with its descriptor (the helper every node uses); a value of the
+    wrong type or out of range is a ConfigError naming the parameter and what is allowed."""
+    return TrainerParams(**params.declare(node, PARAMETERS))
 
 
 def check_params(p: TrainerParams) -> None:
@@ -204,8 +198,30 @@ def start_learner(p: TrainerParams, cfg: Config, run_dir: Path) -> LearnerClient
 
 class TrainerNode(Node):
     def __init__(self, context: Context) -> None:
+        """Declares: parameters, the learner process, publishers, subscriptions, timers; then
+        publishes the first weights and starts the learner's stream (``start``)."""
         super().__init__("trainer", context=context)
         p = declare_parameters(self)
+        cfg = self.configure(p)
+        # The learner runs in its own process: nothing it does can hold this node's executor.
+        # Started before any topic exists: a checkpoint it cannot resume from is a config error.
+        self.learner = start_learner(p, cfg, self.run_dir)
+        self.version = self.learner.start_weights.version
+        self.transitions_learned = self.learner.start_transitions
+        self.weights_pub = self.create_publisher(
+            PolicyWeights, topics.absolute(self.ns, topics.WEIGHTS), LATCHED)
+        self.hypergraph_pub = self.create_publisher(
+            Hypergraph, topics.absolute(self.ns, topics.HYPERGRAPH), SENSOR)
+        self._subscribe_steps()
+        self.create_subscription(EpisodeSummary, topics.absolute(self.ns, topics.EPISODE),
+                                 self.on_episode, STEP)
+        self.create_timer(LAG_PERIOD_S, self.on_lag_timer)
+        self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
+        self.start(cfg)
+
+    def configure(self, p: TrainerParams) -> Config:
+        """Check the parameters, build the learner's config and the assembler, and set the
+        node's bookkeeping; ConfigError (one line) for anything invalid."""
         check_params(p)
         cfg = build_config(p.env, p.algo, p.seed, p.rollout_steps, p.config,
                            init_from=p.init_from)
@@ -232,37 +248,26 @@ class TrainerNode(Node):
         self._lag_due: float | None = None  # the first tick only starts the clock
         # (version, update end, published) of the recent updates, for the status file
         self.updates: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=200)
-
-        # The learner runs in its own process: nothing it does can hold this node's executor.
-        # Started before any topic exists: a checkpoint it cannot resume from is a config error.
-        self.learner = start_learner(p, cfg, self.run_dir)
-        self.weights_pub = self.create_publisher(
-            PolicyWeights, topics.absolute(self.ns, topics.WEIGHTS), LATCHED)
-        self.hypergraph_pub = self.create_publisher(
-            Hypergraph, topics.absolute(self.ns, topics.HYPERGRAPH), SENSOR)
-        self.version = self.learner.start_weights.version
-        self.transitions_learned = self.learner.start_transitions
         self._obs_topics = [topics.absolute(self.ns, topics.robot_obs(i)) for i in range(n)]
         self._action_topics = [topics.absolute(self.ns, topics.robot_action(i))
                                for i in range(n)]
         self._step_subs: list[Subscription] = []
         self.resubscribed = 0
         self._t_resubscribed = -float("inf")
-        self._subscribe_steps()
-        self.create_subscription(EpisodeSummary, topics.absolute(self.ns, topics.EPISODE),
-                                 self.on_episode, STEP)
-        self.create_timer(LAG_PERIOD_S, self.on_lag_timer)
         self._drops_window = WindowCounts()
-        self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
-
-        self.publish_weights(self.learner.start_weights, time.time())
         self._stop = threading.Event()
+        return cfg
+
+    def start(self, cfg: Config) -> None:
+        """Publish the first (or resumed) weights, start the learner's stream and the status
+        thread, and say so in one line."""
+        self.publish_weights(self.learner.start_weights, time.time())
         self.learner.start(self.on_update, self.on_learner_error)
         self.status_thread = threading.Thread(target=self.status_loop, name="status", daemon=True)
         self.status_thread.start()
         how = f"resumed from {self.learner.resumed}" if self.learner.resumed else "fresh"
         self.get_logger().info(
-            f"ready: env={cfg.env.name} algo={cfg.algo.name} robots={n} "
+            f"ready: env={cfg.env.name} algo={cfg.algo.name} robots={self.info.num_robots} "
             f"rollout_steps={cfg.ppo.rollout_len} version={self.version} ({how}) "
             f"init_from={cfg.actor.init_from or '-'} total_steps={self.total_steps or '-'} "
             f"run_dir={self.run_dir} learner_pid={self.learner.process.pid}")
@@ -283,7 +288,7 @@ class TrainerNode(Node):
         if kind is not None:
             self._count(kind, f"on {topic}: {detail}")
 
-    # The step topics arrive as raw CDR (``raw=True``) and are read by ``sdhn_sim.ros.cdr``: no
+    # The step topics arrive as raw CDR (``raw=True``) and are read by ``sdhn_base.ros.cdr``: no
     # Python message objects per message (41 a step at N = 20), which kept the node behind the
     # loop under load.
 

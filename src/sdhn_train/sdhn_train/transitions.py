@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
 from sdhn_train.rollout import Rollout
 
 Key = tuple[int, int]  # (episode, step)

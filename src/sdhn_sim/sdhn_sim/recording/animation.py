@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from sdhn_base.ros import topics
 from sdhn_sim.envs.render import render_grid, robot_colors
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.recording.reader import (
@@ -31,7 +32,6 @@ from sdhn_sim.recording.reader import (
     on_map,
     summaries_from_messages,
 )
-from sdhn_sim.ros import topics
 
 CAPTION_PX = 14  # height of the caption strip (the default bitmap font is 11 px high)
 BAR_PX = 2  # progress bar under the caption
@@ -211,7 +211,7 @@ def _atomic(path: Path, write: object) -> None:
     import os
 
     assert callable(write)
-    # .<name>.<pid>.w.tmp: the pattern sdhn_sim.litter removes when a killed writer left it
+    # .<name>.<pid>.w.tmp: the pattern sdhn_base.litter removes when a killed writer left it
     tmp = path.with_name(f".{path.name}.{os.getpid()}.w.tmp")
     try:
         write(tmp)

@@ -36,10 +36,10 @@ from mcap.records import Channel, Chunk, Header, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rclpy.serialization import deserialize_message
 
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
+from sdhn_base.ros import topics
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.recording.schema import message_class
-from sdhn_sim.ros import topics
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,7 @@ worker falls ``VIZ_QUEUE`` messages behind, viz for the newest is skipped and co
 recording always comes first, and ``replay --add-viz`` can rebuild the viz from a ``viz:=false``
 recording.
 
-Once a second the recorder reports on ``/diagnostics`` (``sdhn_sim.diagnostics``): messages
+Once a second the recorder reports on ``/diagnostics`` (``sdhn_base.diagnostics``): messages
 waiting for the writer thread, messages not written (a failed write), viz messages skipped or
 dropped by cause. It does not record ``/diagnostics`` itself (not under ``team_ns``).
 """
@@ -74,17 +74,17 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
-from sdhn_sim.diagnostics import ERROR, OK, Report, WindowCounts, drop_values, make_report
-from sdhn_sim.drops import DropKind
+from sdhn_base.diagnostics import ERROR, OK, Report, WindowCounts, drop_values, make_report
+from sdhn_base.drops import DropKind
+from sdhn_base.ros import topics
+from sdhn_base.ros.diagnostics import DiagnosticsPublisher
+from sdhn_base.ros.params import boolean, declare, string
+from sdhn_base.ros.qos import LATCHED, LATCHED_RECORDER, SENSOR, STEP
+from sdhn_base.ros.runner import ConfigError, run_node
 from sdhn_sim.recording.reader import fresh_path
 from sdhn_sim.recording.rosbag2 import fill_history, type_hash_text
 from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg_schema
 from sdhn_sim.recording.writer import McapRosWriter
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.diagnostics import DiagnosticsPublisher
-from sdhn_sim.ros.params import boolean, declare, string
-from sdhn_sim.ros.qos import LATCHED, LATCHED_RECORDER, SENSOR, STEP
-from sdhn_sim.ros.runner import ConfigError, run_node
 from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5

@@ -33,7 +33,7 @@ def recover(rec: Recording, requested: Path, chunk_bytes: int = 1 << 20) -> Reco
     from mcap.writer import CompressionType, Writer
 
     target = fresh_path(requested)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.w.tmp")  # sdhn_sim.litter cleans it
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.w.tmp")  # sdhn_base.litter cleans it
     records: dict[int, rosbag2.TopicRecord] = {}
     first = last = None
     try:

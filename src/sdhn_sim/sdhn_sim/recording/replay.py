@@ -335,7 +335,7 @@ def add_viz(rec: Recording, out: Path | None) -> int:
         return 2
     target = fresh_path(requested)  # never the input, never an existing file
     # Atomic: written beside the target, renamed when complete; a failed write (a full disk)
-    # leaves nothing (sdhn_sim.litter cleans a killed writer's temporary file).
+    # leaves nothing (sdhn_base.litter cleans a killed writer's temporary file).
     tmp = target.with_name(f".{target.name}.{os.getpid()}.w.tmp")
     try:
         done = write_with_viz(rec, tmp)
@@ -456,12 +456,12 @@ def republish(rec: Recording, rate: float, wait: float, ack_timeout: float = 10.
     from rclpy.duration import Duration
     from rclpy.qos import ReliabilityPolicy
 
+    from sdhn_base.ros import topics
+    from sdhn_base.ros.qos import LATCHED, SENSOR, STEP
     from sdhn_sim.data_files import fastdds_replay_profile
     from sdhn_sim.recording.reader import current_cdr
     from sdhn_sim.recording.rosbag2 import recorded_profile
     from sdhn_sim.recording.schema import message_class
-    from sdhn_sim.ros import topics
-    from sdhn_sim.ros.qos import LATCHED, SENSOR, STEP
 
     os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(fastdds_replay_profile()))
     context = Context()

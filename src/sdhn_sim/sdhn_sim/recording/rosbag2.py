@@ -29,7 +29,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
-from sdhn_sim.yaml_io import YamlError, load_yaml
+from sdhn_base.yaml_io import YamlError, load_yaml
 
 BAG_VERSION = 9
 ROS_DISTRO = "jazzy"

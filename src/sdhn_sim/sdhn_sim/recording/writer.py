@@ -176,7 +176,7 @@ class McapRosWriter:
         self._stream.close()
         if self.bag_dir:
             target = self.path.parent / "metadata.yaml"
-            tmp = target.with_name(f".metadata.yaml.{os.getpid()}.w.tmp")  # sdhn_sim.litter
+            tmp = target.with_name(f".metadata.yaml.{os.getpid()}.w.tmp")  # sdhn_base.litter
             tmp.write_text(rosbag2.metadata_yaml(summary))
             os.replace(tmp, target)
 

@@ -34,7 +34,7 @@ from typing import Any
 from foxglove.messages import RawImage, SceneUpdate
 from mcap.writer import Writer
 
-from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
+from sdhn_base.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.viz.renderer import VizRenderer
 from sdhn_sim.viz.world import BadInput
 

@@ -11,9 +11,9 @@ from typing import Any
 
 from foxglove.messages import RawImage, SceneUpdate
 
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
+from sdhn_base.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.episode import EpisodeResult
-from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.viz.draw import hypergraph_entities, p_h_image, robot_entities, static_entities
 from sdhn_sim.viz.world import (
     BadInput,

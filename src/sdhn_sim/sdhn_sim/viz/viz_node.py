@@ -25,13 +25,13 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.node import Node
 
+from sdhn_base.ros import topics
+from sdhn_base.ros.params import declare, integer, string
+from sdhn_base.ros.qos import SENSOR, STEP
+from sdhn_base.ros.runner import ConfigError, run_node
+from sdhn_base.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_msgs.msg import EpisodeSummary, Hypergraph, TeamState
 from sdhn_sim.envs.registry import env_names
-from sdhn_sim.ros import topics
-from sdhn_sim.ros.params import declare, integer, string
-from sdhn_sim.ros.qos import SENSOR, STEP
-from sdhn_sim.ros.runner import ConfigError, run_node
-from sdhn_sim.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
 from sdhn_sim.viz.renderer import VizRenderer
 from sdhn_sim.viz.server import BindError, VizServer, ws_url
 from sdhn_sim.viz.world import BadInput

@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 from foxglove.messages import Timestamp
 
-from sdhn_sim.drops import DropKind
+from sdhn_base.drops import DropKind
 from sdhn_sim.envs.maif import COORD_FEATURES, OBS_SIZE, RADIUS, WINDOW
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS, MaifConfig, load_instances
 from sdhn_sim.envs.registry import RWARE_TASKS, env_names, rware_task_size

@@ -1,0 +1,32 @@
+"""ament_python package sdhn_base.
+
+Installed by colcon on a full ROS install, or in editable mode by scripts/setup.sh.
+"""
+
+from setuptools import find_packages, setup
+
+PACKAGE = "sdhn_base"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    package_data={PACKAGE: []},
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="sdhn developers",
+    maintainer_email="sdhn-dev@example.com",
+    description=(
+        "SDHN base: shared utilities and the ROS plumbing every sdhn package uses."
+    ),
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+
+        ],
+    },
+)

@@ -1,0 +1,183 @@
+"""Add the large held-out set to a shipped MAIF model's card: greedy play and, with
+``--temperature T``, sampled play at T, with ``--break-stalls [RULE]`` greedy play with stall
+breaking (``sdhn_policy.stall_breaker``), on the 1,000 instances on 200 maps no training run
+sees; the card recommends the mode its launch config deploys (``--deploy``; default: the last
+one evaluated of greedy, sampled, break-stalls).
+
+    .venv/bin/python scripts/card_heldout_large.py models/maif-10-sdhn --break-stalls
+    .venv/bin/python scripts/card_heldout_large.py models/maif-20-sdhn --temperature 0.25 \
+        --break-stalls --deploy sampled
+
+Writes ``card.json["heldout_large"]`` and a section of ``card.md`` (replacing an earlier one of
+the same title; the rest of the card, written by ``ship_model.py``, is kept), each file written
+atomically. The actor is checked against the card's weights checksum first, so a card never
+describes other weights. Success with its map-bootstrap interval, maps at 0, failures and the
+makespan over the centralised planner's (cached per set, as ``evaluate_policy.py`` does).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from sdhn_experiments.heldout_eval import (
+    default_planner_cache,
+    evaluate_set,
+    planner_makespans,
+    set_checksum,
+    set_instances,
+    summarise,
+)
+from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.deploy_contract import write_deploy_json
+from sdhn_policy.stall_breaker import StallRule
+from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+
+SET = "heldout_large"
+TITLE = "## Large held-out set"
+
+
+DEPLOY_MODES = ("greedy", "sampled", "break-stalls")
+
+
+def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
+             seed: int = 0, *, stall_rule: StallRule | None = None, deploy: str | None = None
+             ) -> dict[str, Any]:
+    """card.json's ``heldout_large`` entry for the model directory ``model``."""
+    card = json.loads((model / "card.json").read_text())
+    task = str(card["env"])
+    if task not in MAIF_CONFIGS:
+        raise ValueError(f"{model}: the card's env {task!r} is not a MAIF task")
+    actor = model / "actor.safetensors"
+    sha = str(json.loads(actor.with_suffix(".json").read_text()).get("sha256", ""))
+    if sha != card.get("weights_sha256"):
+        raise ValueError(f"{model}: actor.safetensors (sha256 {sha[:12]}) is not the card's "
+                         f"weights ({str(card.get('weights_sha256'))[:12]}); ship it again")
+    rt = ActorRuntime.from_file(actor)
+    inst = set_instances(task, SET)
+    plan = None if planner_cache is None else planner_makespans(task, SET, planner_cache,
+                                                                progress=True)
+    runs: list[tuple[str, dict[str, Any]]] = [("greedy", {})]
+    if temperature is not None:
+        runs.append((f"sampled at T={temperature:g}",
+                     {"sample": True, "temperature": temperature}))
+    break_stalls = stall_rule is not None
+    if stall_rule is not None:
+        runs.append((f"greedy, stall breaking {stall_rule.text()}", {"stall": stall_rule}))
+    deploy = deploy or ("break-stalls" if break_stalls else
+                        "sampled" if temperature is not None else "greedy")
+    if (deploy == "sampled" and temperature is None) or (deploy == "break-stalls"
+                                                          and not break_stalls):
+        raise ValueError(f"--deploy {deploy}: that mode is not evaluated (add --temperature or "
+                         "--break-stalls)")
+    modes: dict[str, Any] = {}
+    for name, how in runs:
+        recs = evaluate_set(rt, task, SET, seed=seed, **how)
+        s = summarise(recs, plan, inst.num_formations)
+        modes[name] = {k: s.get(k) for k in (
+            "success_rate", "success_ci95_maps", "maps_with_zero_success", "failures",
+            "makespan_ratio_mean", "makespan_ratio_p90")}
+        print(f"[card] {model.name} {name}: success {s['success_rate']:.3f}", flush=True)
+    return {"set": SET, "set_checksum": set_checksum(inst), "instances": inst.num_instances,
+            "maps": inst.num_instances // inst.num_formations, "seed": seed, "modes": modes,
+            "deploy": {"greedy": deploy != "sampled",
+                       "temperature": temperature if deploy == "sampled" else 1.0,
+                       "break_stalls": deploy == "break-stalls",
+                       **({"stall_rule": stall_rule.text()}
+                          if deploy == "break-stalls" and stall_rule is not None
+                          and stall_rule != StallRule() else {})}}
+
+
+def section(entry: dict[str, Any]) -> str:
+    def ratio(x: float | None) -> str:
+        return "–" if x is None else f"{x:.3f}"
+
+    rows = []
+    for name, m in entry["modes"].items():
+        lo, hi = m["success_ci95_maps"]
+        f = m["failures"]
+        rows.append(f"| {name} | {m['success_rate']:.3f} [{lo:.3f}, {hi:.3f}] | "
+                    f"{m['maps_with_zero_success']} | {f['deadlock']} / {f['wander']} | "
+                    f"{ratio(m['makespan_ratio_mean'])}, {ratio(m['makespan_ratio_p90'])} |")
+    d = entry["deploy"]
+    rule = f", `stall_rule: \"{d['stall_rule']}\"`" if d.get("stall_rule") else ""
+    how = (f"`greedy: true`, `break_stalls: true`{rule}" if d.get("break_stalls") else "greedy"
+           if d["greedy"] else f"`greedy: false`, `temperature: {d['temperature']:g}`")
+    return f"""{TITLE}
+
+{entry['instances']:,} instances on {entry['maps']} maps no training run sees (set checksum
+`{entry['set_checksum'][:12]}`), one episode each, with the NumPy runtime; written by
+`scripts/card_heldout_large.py`. Deploy with {how}.
+
+| mode | success [95 % CI, maps] | maps at 0 | deadlock / wander | makespan / planner (mean, p90) |
+|---|---|---|---|---|
+{chr(10).join(rows)}
+"""
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def update_card(model: Path, entry: dict[str, Any]) -> None:
+    card = json.loads((model / "card.json").read_text())
+    card["heldout_large"] = entry
+    md = (model / "card.md").read_text()
+    if TITLE in md:  # replace the earlier section (it runs to the end of the card)
+        md = md[:md.index(TITLE)].rstrip("\n") + "\n"
+    _write_atomic(model / "card.json", json.dumps(card, indent=2) + "\n")
+    _write_atomic(model / "card.md", md.rstrip("\n") + "\n\n" + section(entry))
+    if (model / "actor.onnx").exists():  # the deployment mode just chosen, for ONNX users
+        spec = ActorRuntime.from_file(model / "actor.safetensors").spec
+        write_deploy_json(model, spec, "maif")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
+    p.add_argument("models", nargs="+", type=Path, help="model directories (models/<name>)")
+    p.add_argument("--temperature", type=float, help="also sampled play at this temperature, "
+                                                     "the mode the card recommends")
+    p.add_argument("--break-stalls", nargs="?", const="", default=None,
+                   metavar="CALM,PROGRESS,SAMPLE[,T]",
+                   help="also greedy play with stall breaking (the actor's break_stalls); "
+                        "optional: the rule (default: the actor's, "
+                        f"{StallRule().text()}; scripts/tune_stall_rule.py chooses one)")
+    p.add_argument("--deploy", choices=DEPLOY_MODES, default=None,
+                   help="the mode the card recommends (default: the last evaluated)")
+    p.add_argument("--no-planner", action="store_true", help="skip the planner's makespans")
+    p.add_argument("--planner-cache", type=Path, default=default_planner_cache())
+    args = p.parse_args(argv)
+    if args.temperature is not None and not (math.isfinite(args.temperature)
+                                             and args.temperature > 0):
+        print("card_heldout_large: --temperature must be a finite number > 0", file=sys.stderr)
+        return 2
+    try:
+        rule = (None if args.break_stalls is None else
+                StallRule.parse(args.break_stalls) if args.break_stalls else StallRule())
+    except ValueError as e:
+        print(f"card_heldout_large: --break-stalls: {e}", file=sys.stderr)
+        return 2
+    for model in args.models:
+        try:
+            entry = evaluate(model, args.temperature,
+                             None if args.no_planner else args.planner_cache,
+                             stall_rule=rule, deploy=args.deploy)
+        except (OSError, ValueError, KeyError) as e:
+            print(f"card_heldout_large: {e}", file=sys.stderr)
+            return 2
+        update_card(model, entry)
+        print(f"[card] wrote {model}/card.md and card.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,49 @@
+"""One shape per concept: a second definition or reader of the same thing fails here.
+
+- ``ConfigError`` is defined once (``sdhn_base.errors``); narrower configuration errors
+  subclass it.
+- ``metrics.csv`` is read and written by ``sdhn_train.metrics_file`` only: any other module that
+  mentions the file and parses CSV is a second reader.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SOURCES = sorted([*(ROOT / "src").rglob("*.py"), *(ROOT / "scripts").glob("*.py")])
+
+
+def _classes(path: Path) -> list[ast.ClassDef]:
+    return [n for n in ast.walk(ast.parse(path.read_text(), str(path)))
+            if isinstance(n, ast.ClassDef)]
+
+
+def _base_names(cls: ast.ClassDef) -> set[str]:
+    return {b.id if isinstance(b, ast.Name) else getattr(b, "attr", "") for b in cls.bases}
+
+
+def test_config_error_is_defined_once_and_config_errors_derive_from_it() -> None:
+    defined = [str(p.relative_to(ROOT)) for p in SOURCES for c in _classes(p)
+               if c.name == "ConfigError"]
+    assert defined == ["src/sdhn_base/sdhn_base/errors.py"], defined
+    strays = [f"{p.relative_to(ROOT)}:{c.name}" for p in SOURCES for c in _classes(p)
+              if c.name.endswith("ConfigError") and c.name != "ConfigError"
+              and "ConfigError" not in _base_names(c)]
+    assert not strays, f"configuration errors that do not derive from ConfigError: {strays}"
+
+
+def _parses_csv(tree: ast.AST) -> bool:
+    return any(isinstance(n, ast.Attribute) and n.attr in ("reader", "DictReader")
+               and isinstance(n.value, ast.Name) and n.value.id == "csv" for n in ast.walk(tree))
+
+
+def test_metrics_csv_has_one_reader_beside_its_writer() -> None:
+    readers = []
+    for path in SOURCES:
+        text = path.read_text()
+        if "metrics.csv" in text and _parses_csv(ast.parse(text, str(path))):
+            readers.append(str(path.relative_to(ROOT)))
+    assert readers == ["src/sdhn_train/sdhn_train/metrics_file.py"], (
+        f"metrics.csv parsed outside sdhn_train.metrics_file: {readers}")

@@ -27,7 +27,7 @@ from sdhn_sim.viz.viz_node import _check_params as viz_check_params
 from sdhn_train import cli
 from sdhn_train.algorithms.registry import ALGO_NAMES
 from sdhn_train.config import Config, ConfigError, validate
-from sdhn_train.trainer_node import TrainerParams, check_params
+from sdhn_train.trainer_node import check_params, default_params
 
 ENVS = set(env_names())
 ALGOS = set(ALGO_NAMES)
@@ -76,11 +76,11 @@ def cli_algo(name: str) -> bool:
 
 
 def node_env(name: str) -> bool:
-    return _raises(lambda: check_params(TrainerParams(env=name)), NodeConfigError)
+    return _raises(lambda: check_params(default_params(env=name)), NodeConfigError)
 
 
 def node_algo(name: str) -> bool:
-    return _raises(lambda: check_params(TrainerParams(algo=name)), NodeConfigError)
+    return _raises(lambda: check_params(default_params(algo=name)), NodeConfigError)
 
 
 def _suite(tmp: Path, task: str, algo: str) -> bool:

@@ -39,11 +39,16 @@ def _parses_csv(tree: ast.AST) -> bool:
                and isinstance(n.value, ast.Name) and n.value.id == "csv" for n in ast.walk(tree))
 
 
+def _names_metrics_csv(tree: ast.AST) -> bool:
+    """The file name as a value in code (docstrings that mention it do not count)."""
+    return any(isinstance(n, ast.Constant) and n.value == "metrics.csv" for n in ast.walk(tree))
+
+
 def test_metrics_csv_has_one_reader_beside_its_writer() -> None:
     readers = []
     for path in SOURCES:
-        text = path.read_text()
-        if "metrics.csv" in text and _parses_csv(ast.parse(text, str(path))):
+        tree = ast.parse(path.read_text(), str(path))
+        if _names_metrics_csv(tree) and _parses_csv(tree):
             readers.append(str(path.relative_to(ROOT)))
     assert readers == ["src/sdhn_train/sdhn_train/metrics_file.py"], (
         f"metrics.csv parsed outside sdhn_train.metrics_file: {readers}")

@@ -131,6 +131,12 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
 }
 
 
+def default_params(**changes: Any) -> TrainerParams:
+    """The parameters as a node started with no ``-p`` would have them, with ``changes``."""
+    return TrainerParams(**{**{name: default for name, (default, _) in PARAMETERS.items()},
+                            **changes})
+
+
 def declare_parameters(node: Node) -> TrainerParams:
     """Declare every parameter with its descriptor (the helper every node uses); a value of the
     wrong type or out of range is a ConfigError naming the parameter and what is allowed."""

@@ -52,3 +52,14 @@ def test_metrics_csv_has_one_reader_beside_its_writer() -> None:
             readers.append(str(path.relative_to(ROOT)))
     assert readers == ["src/sdhn_train/sdhn_train/metrics_file.py"], (
         f"metrics.csv parsed outside sdhn_train.metrics_file: {readers}")
+
+
+def test_nodes_declare_parameters_through_the_one_helper() -> None:
+    """Every node declares through ``sdhn_base.ros.params.declare`` (typed descriptors, one-line
+    errors); a node calling rclpy's ``declare_parameter`` itself is a second way."""
+    helper = ROOT / "src" / "sdhn_base" / "sdhn_base" / "ros" / "params.py"
+    direct = [str(p.relative_to(ROOT)) for p in SOURCES if p != helper
+              for n in ast.walk(ast.parse(p.read_text(), str(p)))
+              if isinstance(n, ast.Attribute) and n.attr in ("declare_parameter",
+                                                               "declare_parameters")]
+    assert not direct, f"parameters declared outside sdhn_base.ros.params: {sorted(set(direct))}"

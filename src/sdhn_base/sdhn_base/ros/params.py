@@ -52,6 +52,13 @@ def string(description: str, *, constraints: str = "", read_only: bool = False
                                additional_constraints=constraints, read_only=read_only)
 
 
+def any_number(description: str, *, constraints: str = "") -> ParameterDescriptor:
+    """Dynamically typed: ``:=0`` and ``:=0.5`` both pass (a double descriptor refuses an
+    integer); the node checks the value itself and names ``constraints`` when it refuses."""
+    return ParameterDescriptor(dynamic_typing=True, description=description,
+                               additional_constraints=constraints)
+
+
 def boolean(description: str, *, read_only: bool = False) -> ParameterDescriptor:
     return ParameterDescriptor(type=ParameterType.PARAMETER_BOOL, description=description,
                                read_only=read_only)

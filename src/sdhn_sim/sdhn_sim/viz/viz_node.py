@@ -21,12 +21,11 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.node import Node
 
 from sdhn_base.ros import topics
-from sdhn_base.ros.params import declare, integer, string
+from sdhn_base.ros.params import any_number, declare, integer, string
 from sdhn_base.ros.qos import SENSOR, STEP
 from sdhn_base.ros.runner import ConfigError, run_node
 from sdhn_base.ros.topics import VIZ_EPISODES, VIZ_HYPERGRAPH, VIZ_METRICS, VIZ_P_H, VIZ_SCENE
@@ -105,8 +104,9 @@ class VizNode(Node):
     def _rate(self, name: str, default: float) -> float:
         """A rate in Hz that accepts 0 as well as 0.0 (dynamic typing: a double descriptor would
         refuse ``max_rate:=0``); anything but a number >= 0 is a ConfigError."""
-        value = self.declare_parameter(name, default, ParameterDescriptor(
-            dynamic_typing=True, description="most scenes per second sent; 0 = every state")).value
+        value = declare(self, {name: (default, any_number(
+            "most scenes per second sent; 0 = every state",
+            constraints="a number >= 0 Hz (0 = every state)"))})[name]
         if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0.0:
             raise ConfigError(f"{name}: {value!r}; allowed: a number >= 0 Hz (0 = every state)")
         return float(value)

@@ -128,6 +128,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="greedy with stall breaking, as the actor nodes' break_stalls runs it "
                         "(sdhn_policy.stall_breaker); optional: the rule's steps and "
                         f"temperature (default {StallRule().text()},1)")
+    p.add_argument("--max-steps", type=int, default=None, metavar="T",
+                   help="episode step limit (default: the environment's, 500 for MAIF)")
     p.add_argument("--runtime", choices=("numpy", "torch"), default="numpy")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--wedge-steps", type=int, default=WEDGE_STEPS,
@@ -164,6 +166,9 @@ def main(argv: list[str] | None = None) -> int:
                   "--unstick or --temperature (its temperature is its fourth value)",
                   file=sys.stderr)
             return 2
+    if args.max_steps is not None and args.max_steps < 1:
+        print("evaluate_policy: --max-steps must be an integer >= 1", file=sys.stderr)
+        return 2
     if args.wedge_steps < 1:
         print("evaluate_policy: --wedge-steps must be an integer >= 1", file=sys.stderr)
         return 2
@@ -199,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.monotonic()
             recs = evaluate_set(policy, task, which, sample=args.sample, seed=args.seed,
                                 wedge_steps=args.wedge_steps, unstick=args.unstick,
-                                temperature=args.temperature, stall=stall)
+                                temperature=args.temperature, stall=stall,
+                                max_steps=args.max_steps)
             took = time.monotonic() - t0
             plan = None if args.no_planner else planner_makespans(
                 task, which, args.planner_cache, progress=True)
@@ -214,6 +220,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{summary['failures']['deadlock']}, {took:.0f} s", flush=True)
             results.append({"policy": label, "actor": path.name, "task": task, "set": which,
                             "set_checksum": set_checksum(inst), "mode": mode,
+                            "max_steps": args.max_steps,
                             "runtime": args.runtime, "seed": args.seed, "unstick": args.unstick,
                             "temperature": args.temperature,
                             "stall_rule": None if stall is None else asdict(stall),

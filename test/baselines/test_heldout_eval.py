@@ -66,6 +66,8 @@ def test_a_policy_that_never_moves_deadlocks_everywhere() -> None:
     assert rep["failures"] == {"episodes": 100, "deadlock": 100, "wander": 0,
                                "wedged_robots_mean": 4.0}
     assert rep["maps_with_zero_success"] == 10
+    short = evaluate_set(StayPolicy(spec), "maif-tiny", "heldout", wedge_steps=50, max_steps=60)
+    assert {r.length for r in short} == {60}, "max_steps is the episode limit"
 
 
 def test_summary_on_known_records() -> None:

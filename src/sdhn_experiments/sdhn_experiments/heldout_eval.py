@@ -37,7 +37,7 @@ from scipy import stats
 from sdhn_policy.actor_runtime import ActorRuntime, check_temperature, choose_actions
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import ActorSpec, atomic_write_bytes
-from sdhn_sim.envs.maif import MaifEnv
+from sdhn_sim.envs.maif import MAX_STEPS, MaifEnv
 from sdhn_sim.envs.maif_instances import MaifInstances
 from sdhn_sim.envs.maif_scripted import PlannerPolicy, run_episodes
 from sdhn_sim.envs.registry import instance_set
@@ -91,19 +91,21 @@ def set_checksum(inst: MaifInstances) -> str:
 def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False, seed: int = 0,
                  wedge_steps: int = WEDGE_STEPS, reward: str = "corrected",
                  unstick: int = 0, temperature: float = 1.0,
-                 stall: StallRule | None = None) -> list[InstanceResult]:
+                 stall: StallRule | None = None,
+                 max_steps: int | None = None) -> list[InstanceResult]:
     """One episode per instance of set ``which`` of ``task``, all in one batch. ``sample``:
     actions drawn from softmax(logits / ``temperature``). ``unstick`` > 0 (with greedy play): a
     robot off its goal that has not moved for ``unstick`` steps samples its action from the
     policy (at ``temperature``) instead of taking the argmax, until it moves. ``stall`` (with
-    greedy play): stall breaking as the actor nodes run it (``sdhn_policy.stall_breaker``)."""
+    greedy play): stall breaking as the actor nodes run it (``sdhn_policy.stall_breaker``).
+    ``max_steps``: the episode limit (None: the environment's)."""
     check_temperature(temperature)
     if stall is not None and (sample or unstick):
         raise ValueError("stall breaking is a greedy mode: not with sample or unstick")
     inst = set_instances(task, which)
     b = inst.num_instances
     env = MaifEnv(inst, num_envs=b, seed=seed, name=task, instance_order="round_robin",
-                  reward=reward)
+                  reward=reward, max_steps=MAX_STEPS if max_steps is None else max_steps)
     n = env.num_robots
     obs, _ = env.reset(seed=seed)
     h = policy.initial_state(b * n)

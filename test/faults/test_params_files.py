@@ -129,3 +129,17 @@ def test_fuzzed_params_files_are_refused_in_one_line_or_read_by_rcl(tmp_path: Pa
         finally:
             rclpy.try_shutdown(context=context)
     assert accepted > 40 and refused > 40, (accepted, refused)
+
+
+def test_a_huge_parameter_value_is_not_echoed_whole(tmp_path: Path) -> None:
+    """Item 7: a 50 MB string was echoed whole into the 'one line' error (here 100 k characters
+    on the command line, past any descriptor's check)."""
+    node = NodeProcess([*VIZ, "-p", f"env:={'x' * 100_000}"])
+    try:
+        code = node.proc.wait(timeout=60)
+    finally:
+        node.stop()
+    errors = [ln for ln in node.lines if "error" in ln]
+    assert code == 2 and len(errors) == 1, node.output[-1000:]
+    assert "env:" in errors[0] and len(errors[0]) < 700, len(errors[0])
+    assert "allowed:" in errors[0], errors[0]  # the end of the message is kept

@@ -50,6 +50,20 @@ FAILED = "failed_reason"
 TEARDOWN_S = 5.0
 
 
+MAX_ERROR_CHARS = 500
+
+
+def one_line(text: str) -> str:
+    """``text`` as one line of about ``MAX_ERROR_CHARS`` characters at most, its start (the
+    field) and its end (what is allowed) kept: a parameter value of 50 MB was echoed whole into
+    the 'one line' error."""
+    flat = " ".join(text.split())
+    if len(flat) <= MAX_ERROR_CHARS:
+        return flat
+    head, tail = MAX_ERROR_CHARS * 3 // 5, MAX_ERROR_CHARS * 2 // 5
+    return f"{flat[:head]} [... {len(flat) - head - tail} characters ...] {flat[-tail:]}"
+
+
 def run_node(
     make_node: Callable[[Context, list[str]], Node | Sequence[Node]],
     argv: Sequence[str] | None = None,
@@ -69,7 +83,7 @@ def run_node(
         for path in params_files(args):
             check_params_file(path)
     except ParamsFileError as error:
-        print(f"{prog}: error: {error}", file=sys.stderr)
+        print(f"{prog}: error: {one_line(str(error))}", file=sys.stderr)
         return 2
     context = Context()
     try:
@@ -86,7 +100,7 @@ def run_node(
         try:
             made = make_node(context, rclpy.utilities.remove_ros_args(args)[1:])
         except (ConfigError, topics.NamespaceError) as error:
-            print(f"{prog}: error: {error}", file=sys.stderr)
+            print(f"{prog}: error: {one_line(str(error))}", file=sys.stderr)
             return 2
         nodes = [made] if isinstance(made, Node) else list(made)
         node = nodes[0]

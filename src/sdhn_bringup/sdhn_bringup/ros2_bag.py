@@ -169,7 +169,10 @@ def file_size(n: int) -> str:
 def time_text(ns: int) -> str:
     """``Jan  1 2024 10:00:00.123 (1704103200.123456789)``, local time, as ros2 bag info."""
     sec, frac = divmod(ns, 1_000_000_000)
-    stamp = time.strftime("%b %e %Y %H:%M:%S", time.localtime(sec))
+    try:
+        stamp = time.strftime("%b %e %Y %H:%M:%S", time.localtime(sec))
+    except (OverflowError, OSError, ValueError):  # a time no calendar holds (a damaged file)
+        stamp = "(out of range)"
     return f"{stamp}.{frac // 1_000_000:03d} ({sec}.{frac:09d})"
 
 

@@ -38,6 +38,7 @@ RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": Reliabilit
 DURABILITY = {"volatile": DurabilityPolicy.VOLATILE,
               "transient_local": DurabilityPolicy.TRANSIENT_LOCAL,
               "system_default": DurabilityPolicy.SYSTEM_DEFAULT}
+UNKNOWN_NODE = "_NODE_NAME_UNKNOWN_"  # Fast DDS's name of an endpoint whose node is not known yet
 HZ_PERIOD_S = 1.0  # ros2 topic hz prints once a second
 DEFAULT_WINDOW = 10000
 
@@ -118,6 +119,12 @@ def topic_info(g: GraphNode, topic: str, verbose: bool) -> int:
         print(f"Unknown topic '{topic}'", file=sys.stderr)
         return 1
     end = "\n\n" if verbose else "\n"
+    if verbose:
+        # An endpoint is discovered before its participant's node names arrive: Fast DDS names
+        # it _NODE_NAME_UNKNOWN_ meanwhile. Wait (bounded) for the names rather than print that.
+        g.wait_for(lambda: not any(
+            e.node_name == UNKNOWN_NODE for e in (*g.node.get_publishers_info_by_topic(topic),
+                                                   *g.node.get_subscriptions_info_by_topic(topic))))
     print(f"Type: {types[0] if len(types) == 1 else types}", end=end)
     print(f"Publisher count: {g.node.count_publishers(topic)}", end=end)
     if verbose:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -75,10 +76,14 @@ def run(venv: Path) -> dict[str, object]:
     base = getattr(sys, "_base_executable", sys.executable)  # not the project venv's python
     t_venv, _ = timed("python -m venv", [base, "-m", "venv", str(venv)])
     py = str(venv / "bin" / "python")
+    # pip builds a local folder in place (setuptools' build/ beside setup.py): build a copy, so
+    # the working tree is left as it was
+    source = venv.parent / "sdhn_sim-src"
+    shutil.copytree(ROOT / "src" / "sdhn_sim", source,
+                    ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
     t_pip, _ = timed("pip install --no-deps ./src/sdhn_sim + pinned deps",
                      [py, "-m", "pip", "install", "-q", "--disable-pip-version-check",
-                      "--no-deps", str(ROOT / "src" / "sdhn_sim"),
-                      *pins(ROOT / "requirements.lock")])
+                      "--no-deps", str(source), *pins(ROOT / "requirements.lock")])
     t_check, out = timed("import and check", [py, "-c", CHECK])
     result: dict[str, object] = json.loads(out.strip().splitlines()[-1])
     result["seconds"] = {"venv": round(t_venv, 1), "pip": round(t_pip, 1),

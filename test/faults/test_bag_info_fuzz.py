@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from sdhn_sim.ros2_bag import BagError, format_info, read_info
+from sdhn_bringup.ros2_bag import BagError, format_info, read_info
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "maif-tiny-pre-instance-id.mcap"
 CASES = 150

@@ -1,9 +1,9 @@
-"""``ros2 topic|node|param|bag`` (our CLI, sdhn_sim.ros2_*) against a live graph of real processes:
-the simulator node (maif-tiny, waiting for actors that never come, so its graph and parameters
-stay put) and a talker (graph_peer.py) that reports what it publishes and with which QoS. Each
-verb's output is compared with what the node itself reports: the simulator's declared parameters,
-the talker's QoS and sent messages, and, for bags, an independent read of the MCAP file.
-"""
+"""``ros2 topic|node|param|bag`` (our CLI, sdhn_bringup.ros2_*) against a live graph of real
+processes: the simulator node (maif-tiny, waiting for actors that never come, so its graph and
+parameters stay put) and a talker (graph_peer.py) that reports what it publishes and with which
+QoS. Each verb's output is compared with what the node itself reports: the simulator's declared
+parameters, the talker's QoS and sent messages, and, for bags, an independent read of the MCAP
+file."""
 
 from __future__ import annotations
 

@@ -63,3 +63,21 @@ def test_nodes_declare_parameters_through_the_one_helper() -> None:
               if isinstance(n, ast.Attribute) and n.attr in ("declare_parameter",
                                                                "declare_parameters")]
     assert not direct, f"parameters declared outside sdhn_base.ros.params: {sorted(set(direct))}"
+
+
+def test_simulator_settings_are_defined_once() -> None:
+    """The simulator node's parameters are SimConfig's fields (help, range, default) plus what
+    only the node has; a parameter written by hand beside them is a second definition."""
+    import dataclasses
+
+    from sdhn_sim.lockstep import SimConfig
+    from sdhn_sim.sim_node import NODE_ONLY, PARAMETERS
+
+    fields = {f.name: f for f in dataclasses.fields(SimConfig)}
+    assert set(PARAMETERS) == set(fields) | set(NODE_ONLY), sorted(set(PARAMETERS) ^ set(fields))
+    defaults = SimConfig()
+    for name, f in fields.items():
+        default, descriptor = PARAMETERS[name]
+        assert descriptor.description == f.metadata["help"], name
+        text = f.metadata["text_default"]
+        assert default == (text if text is not None else getattr(defaults, name)), name

@@ -78,23 +78,51 @@ class SimConfigError(ConfigError):
     """A simulator setting is invalid; the message names it and the allowed values."""
 
 
+def setting(default: Any, help: str, lo: float | None = None, hi: float | None = None, *,
+            text_default: str | None = None) -> Any:
+    """A SimConfig field (a callable ``default`` is its factory) with what the simulator node's
+    ROS parameter needs: its help, its range (``lo``/``hi``, the descriptor's bounds) and, for a
+    structured field that a parameter carries as YAML text, the text default. The node's
+    parameter table is generated from these fields (``sdhn_sim.sim_node.PARAMETERS``), so a
+    setting is defined once."""
+    meta = {"help": help, "lo": lo, "hi": hi, "text_default": text_default}
+    if callable(default):  # a mutable default: its factory
+        return field(default_factory=default, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
 @dataclass(frozen=True)
 class SimConfig:
-    """The simulator's settings (the ROS parameters of ``sdhn_sim sim`` mirror these fields)."""
+    """The simulator's settings, each defined once: the ROS parameters of ``sdhn_sim sim`` are
+    generated from these fields (their help, range and default)."""
 
-    env: str = "maif-10"  # registry name
-    seed: int = 0  # seed of the environment's instance stream
-    episodes: int = 0  # episodes to run, then stop; 0 = until stopped
-    step_deadline: float = 1.0  # seconds to wait for all N actions of a step
-    instance: int = -1  # MAIF instance to replay every episode; -1 = draw per episode
-    start_timeout: float = 60.0  # seconds to wait for every actor to be matched before step 0
-    max_steps: int = 0  # episode step limit; 0 = the environment's default
-    extra_subscribers: int = 0  # other nodes (trainer, recorder) to wait for before step 0
-    conditions: Conditions = field(default_factory=Conditions)  # the default: the ideal world
-    clock: str = "lockstep"  # lockstep: wait for all N actions; realtime: step at rate_hz
-    fail_after_missed: int = 0  # a robot silent for this many steps in a row fails; 0 = never
-    faults: tuple[Fault, ...] = ()  # robots whose observations stop at a step (sdhn_sim.faults)
-    rate_hz: float = 10.0  # realtime: world steps per second
+    env: str = setting("maif-10", f"environment registry name, one of {', '.join(env_names())}")
+    seed: int = setting(0, "seed of the environment's instance stream", 0)
+    episodes: int = setting(0, "episodes to run, then stop with exit 0; 0 = until stopped", 0)
+    step_deadline: float = setting(1.0, "seconds to wait for all N actions of a step; a missing "
+                                        "action becomes 'stay'", 0.001, 3600.0)
+    instance: int = setting(-1, "MAIF instance to replay every episode; -1 = draw per episode",
+                            -1)
+    start_timeout: float = setting(60.0, "seconds to wait for every actor before step 0 (then "
+                                         "exit 1)", 0.001, 86400.0)
+    max_steps: int = setting(0, "episode step limit; 0 = the environment's default", 0)
+    extra_subscribers: int = setting(0, "other nodes (trainer, recorder) whose state and obs "
+                                        "subscriptions to wait for before step 0", 0)
+    # setting() returns a dataclasses.field with a default_factory: nothing is shared
+    conditions: Conditions = setting(  # noqa: RUF009
+        Conditions, "deployment conditions: a YAML/JSON mapping of sdhn_sim.envs.conditions "
+        "fields, e.g. '{latency: 1}'; '' = ideal", text_default="")
+    clock: str = setting("lockstep", "lockstep: step once all N actions are in (or "
+                                     "step_deadline); realtime: step rate_hz times a second with "
+                                     "the newest actions, never waiting")
+    rate_hz: float = setting(10.0, "realtime: world steps per second", 0.001, 1000.0)
+    fail_after_missed: int = setting(0, "a robot that has not answered this many steps in a row "
+                                        "fails (stays as an obstacle, its goal dropped, "
+                                        "sdhn_sim.envs.conditions); 0 = never", 0)
+    faults: tuple[Fault, ...] = setting((), "fault schedule: YAML list of {robot, at_step[, "
+                                             "episode]} whose observations stop at that step (the "
+                                             "launcher kills the actor); '' = none "
+                                             "(sdhn_sim.faults)", text_default="")
 
     def validate(self) -> None:
         """Raise SimConfigError naming the first bad field."""

@@ -26,6 +26,7 @@ actions, drops per cause, 1 Hz)."""
 from __future__ import annotations
 
 import array
+import dataclasses
 import functools
 import signal
 import time
@@ -36,6 +37,7 @@ from typing import Any
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Pose, PoseArray
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.node import Node
@@ -46,7 +48,7 @@ from sdhn_base.diagnostics import Report, WindowCounts, drop_values, make_report
 from sdhn_base.drops import DropKind
 from sdhn_base.ros import cdr, topics
 from sdhn_base.ros.diagnostics import DiagnosticsPublisher
-from sdhn_base.ros.params import declare, floating, integer, string
+from sdhn_base.ros.params import INT_MAX, declare, floating, integer, string
 from sdhn_base.ros.qos import POSES, STEP
 from sdhn_base.ros.runner import ConfigError, run_node
 from sdhn_base.ros.status import EventWriter
@@ -61,32 +63,27 @@ LOG_EVERY_S = 2.0  # period of the progress line
 
 
 # The parameters, typed and ranged (they mirror SimConfig; SimConfig.validate checks the rest).
-PARAMETERS = {
-    "env": ("maif-10", string(f"environment registry name, one of {', '.join(env_names())}")),
-    "seed": (0, integer("seed of the environment's instance stream", 0)),
-    "episodes": (0, integer("episodes to run, then stop with exit 0; 0 = until stopped", 0)),
-    "step_deadline": (1.0, floating("seconds to wait for all N actions of a step; a missing "
-                                    "action becomes 'stay'", 0.001, 3600.0)),
-    "instance": (-1, integer("MAIF instance to replay every episode; -1 = draw per episode", -1)),
-    "start_timeout": (60.0, floating("seconds to wait for every actor before step 0 (then exit "
-                                     "1)", 0.001, 86400.0)),
-    "max_steps": (0, integer("episode step limit; 0 = the environment's default", 0)),
-    "extra_subscribers": (0, integer("other nodes (trainer, recorder) whose state and obs "
-                                     "subscriptions to wait for before step 0", 0)),
+def _parameter(f: dataclasses.Field[Any]) -> tuple[Any, ParameterDescriptor]:
+    """(default, descriptor) of the ROS parameter mirroring SimConfig field ``f``."""
+    meta = f.metadata
+    if meta["text_default"] is not None:  # a structured setting, given as YAML text
+        return meta["text_default"], string(meta["help"])
+    default = f.default
+    if isinstance(default, bool | str):
+        return default, string(meta["help"])
+    lo, hi = meta["lo"], meta["hi"]
+    if isinstance(default, int):
+        return default, integer(meta["help"], int(lo) if lo is not None else -INT_MAX,
+                                int(hi) if hi is not None else INT_MAX)
+    return default, floating(meta["help"], float(lo), float(hi))
+
+
+# Every SimConfig field, generated (one definition of each setting), and what only the node has.
+PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
+    **{f.name: _parameter(f) for f in dataclasses.fields(SimConfig)},
     "events_file": ("", string("JSON-lines file for a supervisor's events; '' = none")),
-    "conditions": ("", string("deployment conditions: a YAML/JSON mapping of "
-                              "sdhn_sim.envs.conditions fields, e.g. '{latency: 1}'; '' = ideal")),
-    "clock": ("lockstep", string("lockstep: step once all N actions are in (or step_deadline); "
-                                 "realtime: step rate_hz times a second with the newest actions, "
-                                 "never waiting")),
-    "rate_hz": (10.0, floating("realtime: world steps per second", 0.001, 1000.0)),
-    "fail_after_missed": (0, integer("a robot that has not answered this many steps in a row "
-                                     "fails (stays as an obstacle, its goal dropped, "
-                                     "sdhn_sim.envs.conditions); 0 = never", 0)),
-    "faults": ("", string("fault schedule: YAML list of {robot, at_step[, episode]} whose "
-                          "observations stop at that step (the launcher kills the actor); "
-                          "'' = none (sdhn_sim.faults)")),
 }
+NODE_ONLY = ("events_file",)
 
 
 def sim_config(p: dict[str, Any]) -> SimConfig:

@@ -126,9 +126,9 @@ def run_one(config: str, rate: float, args: argparse.Namespace
 
 
 def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
-                    seed: int = 0) -> dict[str, Any]:
-    """One episode per instance of the "train" set under ``cond_block``, in the config's
-    deployment mode; success and makespan with 95 % intervals."""
+                    seed: int = 0, instances: list[int] | None = None) -> dict[str, Any]:
+    """One episode per instance of the "train" set (or of ``instances``, in that order) under
+    ``cond_block``, in the config's deployment mode; success and makespan, 95 % intervals."""
     import yaml
 
     from sdhn_bringup.supervisor import resolve_weights
@@ -142,9 +142,10 @@ def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
     greedy, temperature = bool(cfg.get("greedy", True)), float(cfg.get("temperature", 1.0))
     rule = (StallRule.parse(cfg["stall_rule"]) if cfg.get("stall_rule") else StallRule()
             ) if cfg.get("break_stalls") else None
-    b = 100
+    played = list(range(100)) if instances is None else instances
+    b = len(played)
     env = ConditionedEnv(make_env(cfg["env"], num_envs=b, seed=seed, max_steps=max_steps,
-                                  instance_order="round_robin", instance_ids=list(range(b))),
+                                  instance_order="round_robin", instance_ids=played),
                          conditions_from_dict(cond_block))
     n = env.num_robots
     obs, _ = env.reset()
@@ -176,7 +177,14 @@ def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
     ms = mean_interval([float(out[e].survivors_makespan) for e in range(b) if oks[e]])
     k = int(sum(oks))
     return {"conditions": cond_block, "instances": b, "success": k / b,
-            "success_ci": wilson(k, b), "makespan": ms[0], "makespan_ci": (ms[1], ms[2])}
+            "success_ci": wilson(k, b), "makespan": ms[0], "makespan_ci": (ms[1], ms[2]),
+            "per_instance": [[played[e], bool(oks[e]),
+                              out[e].survivors_makespan if oks[e] else None] for e in range(b)]}
+
+
+def inside(x: float | None, ci: Any) -> bool:
+    return (x is not None and ci[0] is not None
+            and ci[0] - 1e-9 <= x <= ci[1] + 1e-9)
 
 
 def compare(path: Path) -> None:
@@ -194,16 +202,24 @@ def compare(path: Path) -> None:
             block["latency"] = lat
         run["inprocess_ideal"] = ideal[run["config"]]
         run["inprocess_matched"] = m = play_in_process(run["config"], block, limit)
-        inside_s = m["success_ci"][0] <= run["success"] <= m["success_ci"][1]
-        inside_m = (run["makespan"] is not None and m["makespan_ci"][0] is not None
-                    and m["makespan_ci"][0] <= run["makespan"] <= m["makespan_ci"][1])
-        run["within_interval"] = {"success": inside_s, "makespan": inside_m}
+        played = [int(e["instance_id"]) for e in run["per_episode"]]
+        run["inprocess_matched_same_instances"] = same = play_in_process(
+            run["config"], block, limit, instances=played)
+        inside_s = inside(run["success"], m["success_ci"])
+        inside_m = inside(run["makespan"], m["makespan_ci"])
+        run["within_interval"] = {"success": inside_s, "makespan": inside_m,
+                                  "inprocess_in_ros_success": inside(m["success"],
+                                                                     run["success_ci"]),
+                                  "inprocess_in_ros_makespan": inside(m["makespan"],
+                                                                      run["makespan_ci"])}
         i = ideal[run["config"]]
         print(f"{Path(run['config']).stem} {run['rate_hz']:g} Hz: ROS success {run['success']:.2f}"
               f", makespan {run['makespan'] or math.nan:.1f} | in process {block}: success "
               f"{fmt_ci(m['success'], m['success_ci'])}, makespan "
               f"{fmt_ci(m['makespan'], m['makespan_ci'], 1)} (inside: success {inside_s}, "
-              f"makespan {inside_m}) | ideal: {fmt_ci(i['success'], i['success_ci'])}, "
+              f"makespan {inside_m}) | same {len(played)} instances in process: success "
+              f"{same['success']:.2f}, makespan {same['makespan']:.1f} | ideal: "
+              f"{fmt_ci(i['success'], i['success_ci'])}, "
               f"{fmt_ci(i['makespan'], i['makespan_ci'], 1)}", flush=True)
     path.write_text(json.dumps(no_nan(data), indent=1))
 

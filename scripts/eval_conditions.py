@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sdhn_base.yaml_io import YamlError, load_yaml
 from sdhn_experiments.condition_eval import (
     DEFAULT_SET,
     Mode,
@@ -104,10 +105,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     extra: list[tuple[str, str, Conditions]] = []
     if args.block:
-        import yaml
         try:
-            extra.append(("block", args.block, conditions_from_dict(yaml.safe_load(args.block))))
-        except (ConditionsError, yaml.YAMLError) as e:
+            extra.append(("block", args.block,
+                          conditions_from_dict(load_yaml(args.block, what="--block"))))
+        except (ConditionsError, YamlError) as e:
             print(f"eval_conditions: --block: {e}", file=sys.stderr)
             return 2
     plan: list[tuple[str, str, Conditions]] = []

@@ -129,15 +129,14 @@ def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
                     seed: int = 0, instances: list[int] | None = None) -> dict[str, Any]:
     """One episode per instance of the "train" set (or of ``instances``, in that order) under
     ``cond_block``, in the config's deployment mode; success and makespan, 95 % intervals."""
-    import yaml
-
+    from sdhn_base.yaml_io import load_yaml
     from sdhn_bringup.supervisor import resolve_weights
     from sdhn_policy.actor_runtime import ActorRuntime
     from sdhn_policy.stall_breaker import StallBreaker, StallRule
     from sdhn_sim.envs import make_env
     from sdhn_sim.envs.conditions import ConditionedEnv, conditions_from_dict
 
-    cfg = yaml.safe_load((ROOT / config).read_text())
+    cfg = load_yaml(ROOT / config, what="launch config")
     rt = ActorRuntime.from_file(resolve_weights(str(ROOT / cfg["weights"])))
     greedy, temperature = bool(cfg.get("greedy", True)), float(cfg.get("temperature", 1.0))
     rule = (StallRule.parse(cfg["stall_rule"]) if cfg.get("stall_rule") else StallRule()

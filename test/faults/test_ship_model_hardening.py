@@ -142,5 +142,5 @@ def test_ship_a_checkpoint_leaves_no_temporary_directory(tmp_path: Path) -> None
     assert r.returncode == 0, r.stderr[-2000:]
     assert sorted(p.name for p in (tmp_path / "model").iterdir()) == [
         "actor.json", "actor.onnx", "actor.onnx.json", "actor.safetensors", "card.json",
-        "card.md"]
+        "card.md", "deploy.json"]
     assert list((tmp_path / "tmp").iterdir()) == []

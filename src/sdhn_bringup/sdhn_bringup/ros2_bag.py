@@ -26,6 +26,7 @@ from typing import Any
 
 import yaml
 
+from sdhn_base.yaml_io import YamlError, load_yaml
 from sdhn_sim.recording.reader import NotMcapError, read_recording
 from sdhn_sim.recording.rosbag2 import QOS_KEY, QosFormatError, parse_offered_qos
 
@@ -65,8 +66,8 @@ def qos_list(raw: Any) -> list[dict[str, Any]]:
     a YAML string before)."""
     if isinstance(raw, str):
         try:
-            loaded = yaml.safe_load(raw) if raw.strip() else []
-        except yaml.YAMLError:
+            loaded = load_yaml(raw, what="offered_qos_profiles") if raw.strip() else []
+        except YamlError:
             return []
         raw = loaded
     return [p for p in raw if isinstance(p, dict)] if isinstance(raw, list) else []
@@ -127,7 +128,11 @@ def info_from_directory(bag: Path) -> BagInfo:
         return BagInfo(files, "mcap", "jazzy", min(p.start_ns for p in parts),
                        max(p.end_ns for p in parts), sorted(merged.values(), key=lambda t: t.name),
                        "no metadata.yaml (the recorder did not stop cleanly): read the .mcap files")
-    meta = (yaml.safe_load(meta_path.read_text()) or {}).get("rosbag2_bagfile_information")
+    try:
+        meta = load_yaml(meta_path, what="bag metadata") or {}
+    except YamlError as e:
+        raise BagError(str(e)) from None
+    meta = meta.get("rosbag2_bagfile_information") if isinstance(meta, dict) else None
     if not isinstance(meta, dict):
         raise BagError(f"{meta_path}: no rosbag2_bagfile_information")
     start = int(meta.get("starting_time", {}).get("nanoseconds_since_epoch", 0))

@@ -22,6 +22,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from sdhn_base.yaml_io import YamlError, load_yaml
+
 FIELDS = ("robot", "at_step", "episode")
 
 
@@ -51,12 +53,10 @@ def parse_faults(block: Any, num_robots: int, episodes: int = 0) -> tuple[Fault,
     the faults in time order. ``episodes`` (0 = unlimited) bounds ``episode``. At least one robot
     must stay alive, and a robot dies at most once (a killed actor is never restarted)."""
     if isinstance(block, str):
-        import yaml
-
         try:
-            block = yaml.safe_load(block) if block.strip() else None
-        except yaml.YAMLError as e:
-            raise FaultsError(f"faults: not YAML ({str(e).splitlines()[0]})") from e
+            block = load_yaml(block, what="faults") if block.strip() else None
+        except YamlError as e:
+            raise FaultsError(str(e)) from e
     if block is None:
         return ()
     if not isinstance(block, Sequence) or isinstance(block, str | bytes):

@@ -56,6 +56,7 @@ import numpy.typing as npt
 
 from sdhn_base.drops import DropKind
 from sdhn_base.errors import ConfigError
+from sdhn_base.yaml_io import YamlError, load_yaml
 from sdhn_sim.envs import make_single_env
 from sdhn_sim.envs.api import EpisodeStats
 from sdhn_sim.envs.conditions import (
@@ -173,12 +174,11 @@ class SimConfig:
     def parse_conditions(block: Any) -> Conditions:
         """A ``conditions:`` block (a mapping, or its YAML/JSON text; '' = ideal) -> Conditions;
         SimConfigError naming the field if invalid."""
-        if isinstance(block, str):
-            import yaml  # the text of a ROS string parameter
+        if isinstance(block, str):  # the text of a ROS string parameter
             try:
-                block = yaml.safe_load(block) if block.strip() else None
-            except yaml.YAMLError as e:
-                raise SimConfigError(f"conditions: not YAML ({str(e).splitlines()[0]})") from e
+                block = load_yaml(block, what="conditions") if block.strip() else None
+            except YamlError as e:
+                raise SimConfigError(str(e)) from e
         try:
             return conditions_from_dict(block)
         except ConditionsError as e:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -31,7 +32,8 @@ SEED, EPISODES = 7, 3
 def test_a_deployment_under_conditions_reproduces_the_in_process_outcomes(
         tmp_path: Path, block: str, cond: Conditions) -> None:
     sets = [f"run_dir={tmp_path}", "recorder=false", f"seed={SEED}", f"episodes={EPISODES}",
-            "max_steps=60", f"conditions={block}", f"team_ns=/sdhn_cond_{cond.failures}"]
+            "max_steps=60", f"conditions={block}",
+            f"team_ns=/sdhn_cond_{cond.failures}_{os.getpid()}"]  # never a lingering run's
     args = [*LAUNCH, *(a for s in sets for a in ("--set", s))]
     with node_processes(args) as (launcher,):
         launcher.proc.wait(timeout=120)

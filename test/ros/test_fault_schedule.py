@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -38,7 +39,8 @@ def outcome(row: dict[str, str]) -> tuple[bool, int | None, bool, int | None, in
 def test_a_killed_actor_fails_its_robot_as_in_process(tmp_path: Path) -> None:
     sets = [f"run_dir={tmp_path}", "recorder=false", f"seed={SEED}", f"episodes={EPISODES}",
             f"max_steps={MAX_STEPS}", "step_deadline=0.5", "fail_after_missed=2",
-            f"faults=[{{robot: {ROBOT}, at_step: {AT_STEP}}}]", "team_ns=/sdhn_faults"]
+            f"faults=[{{robot: {ROBOT}, at_step: {AT_STEP}}}]",
+            f"team_ns=/sdhn_faults_{os.getpid()}"]  # never a lingering run's
     args = [*LAUNCH, *(a for s in sets for a in ("--set", s))]
     with node_processes(args) as (launcher,):
         launcher.proc.wait(timeout=120)

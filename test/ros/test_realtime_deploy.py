@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -21,7 +22,7 @@ N, EPISODES, MAX_STEPS = 4, 2, 30
 def test_realtime_deployment_accounts_for_every_robot_step(weights: Path, tmp_path: Path) -> None:
     sets = [f"weights={weights}", f"run_dir={tmp_path}", "recorder=false",
             f"max_steps={MAX_STEPS}", f"episodes={EPISODES}", "clock=realtime", "rate_hz=20.0",
-            "team_ns=/sdhn_realtime"]
+            f"team_ns=/sdhn_realtime_{os.getpid()}"]
     args = [*LAUNCH, *(a for s in sets for a in ("--set", s))]
     with node_processes(args) as (launcher,):
         launcher.proc.wait(timeout=90)

@@ -30,6 +30,9 @@ setup(
             "run_experiments = sdhn_experiments.experiments_cli:main",
             "protocol_report = sdhn_experiments.protocol_report:main",
             "carry_runs = sdhn_experiments.carry:main",
+            "evaluate_policy = sdhn_experiments.evaluate_policy:main",
+            "ship_model = sdhn_experiments.ship_model:main",
+            "train_curriculum = sdhn_experiments.curriculum:main",
         ],
     },
 )

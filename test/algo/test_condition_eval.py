@@ -4,8 +4,11 @@ reproduces the held-out evaluation, and dead reckoning is measured against plain
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
 
 import pytest
+from script_modules import load_script
 
 from sdhn_experiments.condition_eval import Mode, card_mode, evaluate_under, summarise_under
 from sdhn_policy.actor_runtime import ActorRuntime
@@ -54,3 +57,18 @@ def test_dead_reckoning_holds_up_under_two_steps_of_latency() -> None:
                            ideal, 10)
     assert reck["success_rate"] >= plain["success_rate"]
     assert reck["makespan_over_ideal"] < 0.5 * plain["makespan_over_ideal"]
+
+
+def test_the_scripts_sweep_a_condition_and_draw_the_figure(tmp_path: Path) -> None:
+    out = tmp_path / "cond.json"
+    ev = load_script("eval_conditions")
+    assert ev.main(["models/maif-tiny-sdhn", "--instances", "10", "--set", "heldout",
+                    "--conditions", "failures", "--severities", "1", "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [(r["condition"], r["severity"]) for r in rows] == [("ideal", "-"), ("failures", "1")]
+    assert len(rows[1]["records"]) == 10
+    fig, md = tmp_path / "fig.png", tmp_path / "table.md"
+    assert load_script("plot_conditions").main(
+        [str(out), "--figure", str(fig), "--markdown", str(md)]) == 0
+    assert fig.stat().st_size > 1000 and md.read_text().count("| maif-tiny-sdhn |") == 2
+    assert ev.main(["models/maif-tiny-sdhn", "--block", "{latency: -1}"]) == 2

@@ -300,3 +300,23 @@ def test_in_process_and_lockstep_give_the_same_outcomes(cond: Conditions) -> Non
     a = play_in_process(cond, seed=7, episodes=4)
     assert a == play_lockstep(cond, seed=7, episodes=4)
     assert any(x[2] for x in a)  # some episodes complete: the comparison is not all NC
+
+
+def test_rware_runs_under_latency_loss_slowness_and_failure() -> None:
+    env = make_env("rware-tiny-2ag", num_envs=2, seed=3, max_steps=40)
+    cond = Conditions(latency=1, lost_actions=0.2, slow_fraction=0.5, slow_rate=0.5,
+                      failures=1, failure_horizon=10)
+    wrapped = ConditionedEnv(env, cond)
+    obs, _ = wrapped.reset()
+    rng = np.random.default_rng(0)
+    outcomes = []
+    for _ in range(40):
+        a = rng.integers(0, env.num_actions, size=(2, env.num_robots))
+        res = wrapped.step(a)
+        outcomes += wrapped.outcomes
+        assert res.obs.shape == obs.shape
+    assert sorted(o.env_index for o in outcomes) == [0, 1]
+    assert all(o.deliveries is not None and o.failed == 1 for o in outcomes)
+    assert wrapped.model.counts["lost_actions"] > 0 and wrapped.model.counts["stale_obs"] > 0
+    with pytest.raises(ConditionsError, match=r"conditions\.position_noise"):
+        ConditionedEnv(env, Conditions(position_noise=0.1))

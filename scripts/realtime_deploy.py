@@ -2,7 +2,6 @@
 """The shipped policies deployed over ROS with the simulator's realtime clock (prints figures and
 writes JSON; not a test). Run with the venv's python, on a machine as idle as it gets:
 
-    /work/pause-training 900   # where niced training shares the machine
     .venv/bin/python scripts/realtime_deploy.py --rates 5 10 20 --episodes 20 \
         --out runs/realtime --json docs/results/realtime-deploy.json
 

@@ -91,7 +91,9 @@ def message_class(type_name: str) -> Any:
     parts = type_name.split("/")
     if len(parts) == 2:
         parts = [parts[0], "msg", parts[1]]
-    if len(parts) != 3 or not all(parts):
+    # The name comes from the graph or the command line: import only a package's ``msg``
+    # interfaces module, never an arbitrary module path.
+    if len(parts) != 3 or parts[1] != "msg" or not all(p.isidentifier() for p in parts):
         raise ValueError(f"message type: {type_name!r}; expected pkg/msg/Type")
     try:
         module = importlib.import_module(f"{parts[0]}.{parts[1]}")

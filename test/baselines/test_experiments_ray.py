@@ -29,28 +29,8 @@ from sdhn_experiments.figures import load_runs, results_table
 
 pytest.importorskip("ray")
 
+from sdhn_experiments.bench.experiment_backends import SUITE
 from sdhn_experiments.ray_backend import ATTEMPTS, run_suite_ray
-
-SUITE = """
-name: ray
-methods:
-  sdhn: {algo: sdhn}
-  mappo: {algo: mappo}
-tasks:
-  maif-tiny: {env.max_steps: 40}
-seeds: [1, 2]
-budgets:
-  tiny:
-    set:
-      train.total_steps: 384
-      env.num_envs: 4
-      ppo.rollout_len: 32
-      ppo.num_minibatches: 2
-      eval.interval: 192
-      eval.episodes: 2
-      log.checkpoint_interval: 128
-      log.tensorboard: false
-"""
 
 
 def _rows(run_dir: Path) -> list[tuple[str, str, str]]:

@@ -1,17 +1,11 @@
-"""Shared helpers of the env tests: hand-built MAIF scenarios and the loop reference."""
+"""Shared helpers of the env tests: hand-built MAIF scenarios."""
 
 from __future__ import annotations
 
-from pathlib import Path
-from types import ModuleType
-
 import numpy as np
-from script_modules import load_script
 
 from sdhn_sim.envs.maif import MaifEnv
 from sdhn_sim.envs.maif_instances import MaifConfig, MaifInstances
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 def scenario(
@@ -38,7 +32,3 @@ def scenario(
     env.reset()
     return env
 
-
-def bench_module() -> ModuleType:
-    """``scripts/bench_envs.py`` (holds ``LoopMaif``, the per-robot loop reference)."""
-    return load_script("bench_envs")

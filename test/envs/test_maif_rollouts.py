@@ -7,10 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from sdhn_experiments.bench.envs import LoopMaif
 from sdhn_sim.envs import make_env, make_single_env
 from sdhn_sim.envs.maif import MaifEnv
-
-from .envs_helpers import bench_module
 
 
 def rollout_positions(env: MaifEnv, actions: np.ndarray):
@@ -99,11 +98,10 @@ def test_same_seed_same_run_and_reset_seed_restarts():
 
 
 def test_matches_per_robot_loop_reference():
-    loop_cls = bench_module().LoopMaif
     env = make_env("maif-tiny", num_envs=2, seed=4, max_steps=500)
     assert isinstance(env, MaifEnv)
     env.reset()
-    refs = [loop_cls(env.world(e), rewards=env.rewards) for e in range(2)]
+    refs = [LoopMaif(env.world(e), rewards=env.rewards) for e in range(2)]
     rng = np.random.default_rng(7)
     n = env.num_robots
     collisions = 0
@@ -122,7 +120,7 @@ def test_matches_per_robot_loop_reference():
             np.testing.assert_array_equal(env.robot_collisions[e], coll, err_msg=ctx)
             collisions += sum(coll)
             if res.terminated[e] or res.truncated[e]:
-                refs[e] = loop_cls(env.world(e), rewards=env.rewards)
+                refs[e] = LoopMaif(env.world(e), rewards=env.rewards)
     assert collisions > 20, "the rollout should exercise conflicts"
 
 

@@ -1,7 +1,7 @@
-#!/usr/bin/env python3
 """Runs/hour and scheduling overhead per run of run_experiments' backends (issue 18): the same
-tiny 2-method x 2-seed suite (test/baselines/test_experiments_ray.py) with --backend local
-(--jobs 2) and --backend ray (a local Ray with 2 CPUs, its start included).
+tiny 2-method x 2-seed suite (``SUITE`` below, which test/baselines/test_experiments_ray.py
+runs too) with --backend local (--jobs 2) and --backend ray (a local Ray with 2 CPUs, its
+start included).
 
     .venv/bin/python scripts/bench_experiment_backends.py [--runs-dir /tmp/bench]
 
@@ -21,15 +21,33 @@ from pathlib import Path
 
 from sdhn_experiments.experiments import DONE, load_suite, run_suite
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "test" / "baselines"))
-from test_experiments_ray import SUITE  # noqa: E402
+SUITE = """
+name: ray
+methods:
+  sdhn: {algo: sdhn}
+  mappo: {algo: mappo}
+tasks:
+  maif-tiny: {env.max_steps: 40}
+seeds: [1, 2]
+budgets:
+  tiny:
+    set:
+      train.total_steps: 384
+      env.num_envs: 4
+      ppo.rollout_len: 32
+      ppo.num_minibatches: 2
+      eval.interval: 192
+      eval.episodes: 2
+      log.checkpoint_interval: 128
+      log.tensorboard: false
+"""
+"""The tiny suite both backends run here, and the Ray test too."""
 
 
-def main() -> int:
-    p = argparse.ArgumentParser()
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs-dir", type=Path, default=None)
-    args = p.parse_args()
+    args = p.parse_args(argv)
     tmp = args.runs_dir or Path(tempfile.mkdtemp(prefix="bench_backends_"))
     tmp.mkdir(parents=True, exist_ok=True)
     suite = tmp / "suite.yaml"

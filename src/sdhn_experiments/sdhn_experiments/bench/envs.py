@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Throughput of the environments (prints figures; not a test).
 
 MAIF: agent-steps/s of the batched core at (B=1, N=10), (B=64, N=10), (B=64, N=20), next to
@@ -176,8 +175,8 @@ def bench_rware(name: str, b: int, steps: int, repeats: int) -> tuple[float, flo
     assert isinstance(env, RwareEnv)
     env.reset()
     raws = [make_rware_gym(env.env_id, env.max_steps) for _ in range(b)]
-    for e, raw in enumerate(raws):
-        raw.reset(seed=e)
+    for e, gym_env in enumerate(raws):
+        gym_env.reset(seed=e)
     acts = np.random.default_rng(0).integers(0, 5, size=(steps, b, env.num_robots))
     acts_list: list[list[list[int]]] = acts.tolist()
 

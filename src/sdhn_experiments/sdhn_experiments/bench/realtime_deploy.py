@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """The shipped policies deployed over ROS with the simulator's realtime clock (prints figures and
 writes JSON; not a test). Run with the venv's python, on a machine as idle as it gets:
 
@@ -41,7 +40,9 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-ROOT = Path(__file__).resolve().parents[1]
+from sdhn_experiments.bench import CHECKOUT
+
+ROOT = CHECKOUT
 CONFIGS = ["configs/launch/deploy-maif10.yaml", "configs/launch/deploy-maif20.yaml"]
 
 
@@ -129,14 +130,14 @@ def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
     """One episode per instance of the "train" set (or of ``instances``, in that order) under
     ``cond_block``, in the config's deployment mode; success and makespan, 95 % intervals."""
     from sdhn_base.yaml_io import load_yaml
-    from sdhn_bringup.supervisor import resolve_weights
     from sdhn_policy.actor_runtime import ActorRuntime
     from sdhn_policy.stall_breaker import StallBreaker, StallRule
     from sdhn_sim.envs import make_env
     from sdhn_sim.envs.conditions import ConditionedEnv, conditions_from_dict
 
     cfg = load_yaml(ROOT / config, what="launch config")
-    rt = ActorRuntime.from_file(resolve_weights(str(ROOT / cfg["weights"])))
+    weights = ROOT / cfg["weights"]  # the shipped configs name a model folder (its actor file)
+    rt = ActorRuntime.from_file(weights / "actor.safetensors" if weights.is_dir() else weights)
     greedy, temperature = bool(cfg.get("greedy", True)), float(cfg.get("temperature", 1.0))
     rule = (StallRule.parse(cfg["stall_rule"]) if cfg.get("stall_rule") else StallRule()
             ) if cfg.get("break_stalls") else None

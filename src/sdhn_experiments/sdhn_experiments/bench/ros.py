@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """Benchmark of the ROS deployment stack (prints figures; not a test). Run with the venv's python:
 
     .venv/bin/python scripts/bench_ros.py [--robots 4 10 20 40 100] [--steps 300] [--record]
@@ -40,9 +39,10 @@ import numpy as np
 
 from sdhn_base.ros import cdr, topics
 from sdhn_base.ros.status import EventReader
+from sdhn_experiments.bench import CHECKOUT
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = CHECKOUT
 ROS2 = [sys.executable, "-m", "sdhn_bringup.ros2_cli", "run"]
 ENVS = {c.num_robots: name for name, c in MAIF_CONFIGS.items() if name != "maif-solo"}
 """N -> the MAIF task with N robots: 4 (maif-tiny), 10, 16, 20, 30, 40, 60, 100."""
@@ -181,7 +181,8 @@ def ceiling(n: int, steps: int) -> Window:
     from sdhn_msgs.msg import RobotAction, RobotObservation
 
     ns = "/pingpong"
-    echoes = [spawn([sys.executable, __file__, "--echo", str(i), "--ns", ns]) for i in range(n)]
+    echoes = [spawn([sys.executable, "-m", "sdhn_experiments.bench.ros", "--echo", str(i),
+                     "--ns", ns]) for i in range(n)]
     ctx = Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node("master", context=ctx)
@@ -356,7 +357,7 @@ def main() -> int:
     ap.add_argument("--echo", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--ns", default="/pingpong", help=argparse.SUPPRESS)
     if "--fleet" in sys.argv[1:]:
-        from bench_fleet import main as fleet_main
+        from sdhn_experiments.bench.fleet import main as fleet_main
 
         return fleet_main([a for a in sys.argv[1:] if a != "--fleet"])
     args = ap.parse_args()

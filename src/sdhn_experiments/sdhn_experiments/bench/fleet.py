@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """The fleet cost curve (prints figures; not a test): whole deploy graphs started by the launcher
 at N robots, one actor process per robot or actor hosts, simple discovery or the Fast DDS
 discovery server. Run with the venv's python (``scripts/bench_ros.py --fleet`` runs the same):
@@ -28,11 +27,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
-from bench_ros import cpu_seconds, make_weights  # noqa: E402
-
-from sdhn_sim.envs.maif_instances import MAIF_CONFIGS  # noqa: E402
+from sdhn_experiments.bench import CHECKOUT as ROOT
+from sdhn_experiments.bench.ros import cpu_seconds, make_weights
+from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 
 ENVS = {c.num_robots: name for name, c in MAIF_CONFIGS.items() if name != "maif-solo"}
 

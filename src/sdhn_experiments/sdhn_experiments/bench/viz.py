@@ -20,6 +20,7 @@ import json
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from types import SimpleNamespace
 from typing import Any
 
@@ -76,7 +77,7 @@ def encoding_costs(env_name: str) -> None:
     r.on_state(msg)
     n = msg.num_robots
     r.on_hypergraph(hypergraph_message(n, max(2, n // 2)))
-    rows = [
+    rows: list[tuple[str, Callable[[], Any]]] = [
         ("scene, with static map", lambda: r.scene(with_static=True).encode()),
         ("scene, robots only", lambda: r.scene(with_static=False).encode()),
         ("hypergraph scene", lambda: r.hypergraph_scene().encode()),  # type: ignore[union-attr]
@@ -107,9 +108,10 @@ def run_states(msgs: list[Any], server: VizServer) -> tuple[float, int]:
 
 async def client(port: int, seconds: float) -> None:
     import websockets
+    from websockets.typing import Subprotocol
 
     async with websockets.connect(
-        f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], proxy=None,
+        f"ws://127.0.0.1:{port}", subprotocols=[Subprotocol("foxglove.sdk.v1")], proxy=None,
         max_size=None,
     ) as ws:
         subscribed = False
@@ -139,7 +141,7 @@ def overhead(env_name: str, states: int) -> None:
     print(f"per-state cost, {env_name}, {states} states:")
     print(f"  no client:  {idle_ms:7.3f} ms/state  (scenes encoded: {sent})")
     proc = subprocess.Popen(
-        [sys.executable, __file__, "--client", str(server.port)],
+        [sys.executable, "-m", "sdhn_experiments.bench.viz", "--client", str(server.port)],
         stdout=subprocess.PIPE, text=True,
     )
     assert proc.stdout is not None

@@ -34,7 +34,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
+from sdhn_experiments.bench import CHECKOUT
+
+REPO = CHECKOUT
 LAUNCH = [str(REPO / "scripts" / "launch.sh")]
 
 

@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """RWARE env-steps per second: the real ``rware`` package vs the NumPy batched env, side by side.
 
     nice -n 10 .venv/bin/python scripts/bench_rware.py [--robots 3 9] [--batch 1 32 64]

@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """Decision latency of the actor processes, read from their own /diagnostics (prints figures; not
 a test). Run niced with the venv's python:
 
@@ -27,10 +26,8 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_ros import ENVS, ROS2, make_weights, spawn, stop
-
 from sdhn_base.ros import topics
+from sdhn_experiments.bench.ros import ENVS, ROS2, make_weights, spawn, stop
 
 NS = "/sdhn"
 

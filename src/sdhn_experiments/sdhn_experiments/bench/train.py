@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """End-to-end training throughput of the in-process trainer: team env-steps/s wall and per
 CPU-second, peak RSS, and the split of wall time into env stepping, action selection, critic
 (target values + critic forward/backward/step), actor update and periodic greedy evaluation,
@@ -98,7 +97,8 @@ def stop_load(procs: list[subprocess.Popen[bytes]]) -> None:
 
 
 def run_child(env: str, algo: str, args: argparse.Namespace) -> dict[str, object]:
-    cmd = [sys.executable, __file__, "--child", env, algo, "--iterations", str(args.iterations)]
+    cmd = [sys.executable, "-m", "sdhn_experiments.bench.train", "--child", env, algo,
+           "--iterations", str(args.iterations)]
     for s in args.set:
         cmd += ["--set", s]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=os.environ).stdout
@@ -145,7 +145,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     args.set = [f"train.learner_processes={args.learner_processes}", *args.set]
     if args.child:
-        print(json.dumps(measure(*args.child, args.iterations, args.set)), flush=True)
+        env, algo = args.child
+        print(json.dumps(measure(env, algo, args.iterations, args.set)), flush=True)
         return 0
 
     print(f"# start: {load_average()}; --load {args.load}; overrides {args.set or 'none'}",

@@ -54,6 +54,7 @@ def run(model: ConditionModel, steps: int, seed: int = 0) -> list[tuple[np.ndarr
     ({"position_noise": float("nan")}, "position_noise"), ({"cell_misread": -0.1}, "cell_misread"),
     ({"failures": 4}, "failures"), ({"failure_horizon": 0}, "failure_horizon"),
     ({"latency_random": 1}, "latency_random"), ({"seed": -2}, "seed"), ({"lag": 1}, "lag"),
+    ({"randomise": "yes"}, "randomise"),
 ])
 def test_a_bad_field_is_named_in_one_line(block: dict, field: str) -> None:
     with pytest.raises(ConditionsError) as e:
@@ -295,6 +296,8 @@ def play_lockstep(cond: Conditions, seed: int, episodes: int) -> list[tuple]:
     Conditions(latency=1, latency_random=True, lost_actions=0.1),
     Conditions(failures=1, failure_horizon=8, latency=1, latency_random=True),
     Conditions(slow_fraction=0.5, slow_rate=0.5, position_noise=0.1, cell_misread=0.05),
+    Conditions(latency=2, lost_actions=0.2, slow_fraction=0.5, slow_rate=0.5, failures=1,
+               failure_horizon=8, randomise=True),
 ])
 def test_in_process_and_lockstep_give_the_same_outcomes(cond: Conditions) -> None:
     a = play_in_process(cond, seed=7, episodes=4)
@@ -320,3 +323,38 @@ def test_rware_runs_under_latency_loss_slowness_and_failure() -> None:
     assert wrapped.model.counts["lost_actions"] > 0 and wrapped.model.counts["stale_obs"] > 0
     with pytest.raises(ConditionsError, match=r"conditions\.position_noise"):
         ConditionedEnv(env, Conditions(position_noise=0.1))
+
+
+def test_randomise_draws_each_episode_between_the_ideal_and_the_given_severity() -> None:
+    cond = Conditions(latency=3, lost_actions=0.2, slow_fraction=0.5, slow_rate=0.4,
+                      position_noise=0.1, cell_misread=0.05, failures=2, randomise=True)
+    m = ConditionModel(cond, 64, 8, seed=5, grid_size=12)
+    obs = random_obs(np.random.default_rng(0), 64, 8)
+    drawn: dict[str, list[np.ndarray]] = {k: [] for k in m.severity}
+    for _ in range(3):  # three episodes of 64 envs
+        m.start(None, obs)
+        for k, v in m.severity.items():
+            drawn[k].append(v.copy())
+        assert np.array_equal(m.slow.sum(axis=1), np.rint(m.severity["slow_fraction"] * 8)
+                              * (m.severity["slow_rate"] < 1))
+        assert np.array_equal((m.fail_step < np.iinfo(np.int64).max).sum(axis=1),
+                              m.severity["failures"])
+    sev = {k: np.concatenate(v) for k, v in drawn.items()}
+    assert set(sev["latency"].tolist()) == {0, 1, 2, 3}
+    assert set(sev["failures"].tolist()) == {0, 1, 2}
+    for k, hi in (("lost_actions", 0.2), ("slow_fraction", 0.5), ("position_noise", 0.1),
+                  ("cell_misread", 0.05)):
+        assert sev[k].min() >= 0 and sev[k].max() < hi and sev[k].std() > hi / 5, k
+    assert sev["slow_rate"].min() >= 0.4 and sev["slow_rate"].max() <= 1
+    m.observe(obs)
+    assert np.array_equal(m.obs_age.max(axis=1), np.zeros(64))  # step 0: nothing is stale yet
+    assert "randomise" in cond.active() and cond.label().endswith("randomise=True")
+
+
+def test_fixed_severities_are_every_episode_the_given_ones() -> None:
+    cond = Conditions(latency=2, lost_actions=0.1, slow_fraction=0.5, slow_rate=0.5)
+    m = ConditionModel(cond, 4, 8, seed=5, grid_size=12)
+    m.start(None, random_obs(np.random.default_rng(0), 4, 8))
+    assert m.severity["latency"].tolist() == [2] * 4
+    assert m.severity["lost_actions"].tolist() == [0.1] * 4
+    assert m.slow.sum(axis=1).tolist() == [4] * 4

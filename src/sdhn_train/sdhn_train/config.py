@@ -21,6 +21,7 @@ from typing import Any, TypeVar
 
 from sdhn_base import overrides, yaml_io
 from sdhn_policy.features import TRANSFORMS
+from sdhn_sim.envs.conditions import Conditions, ConditionsError, conditions_from_dict
 from sdhn_sim.envs.maif import MAIF_REWARDS
 from sdhn_sim.envs.registry import TRAINING_SETS, env_names
 from sdhn_train.algorithms.registry import ALGO_NAMES, ALGORITHMS, get_algorithm
@@ -101,6 +102,9 @@ def set_field(cfg: Config, dotted: str, value: Any) -> None:
     if section_name not in sections:
         raise ConfigError(f"{dotted}: unknown section {section_name!r}; allowed: "
                           f"{', '.join(sections)}")
+    if dotted == "train.conditions":  # a mapping, which the override engine does not type
+        cfg.train.conditions = _conditions_block(value)
+        return
     try:
         overrides.set_field(sections[section_name], name, value, prefix=f"{section_name}.")
     except overrides.OverrideError as e:
@@ -113,6 +117,33 @@ def apply_dict(cfg: Config, data: dict[str, Any]) -> None:
             raise ConfigError(f"{section}: expected a mapping of fields, got {values!r}")
         for name, value in values.items():
             set_field(cfg, f"{section}.{name}", value)
+
+
+_CONDITIONS_ALLOWED = ("allowed: a conditions: mapping (sdhn_sim.envs.conditions), e.g. "
+                       "{latency: 1, randomise: true}; {} = the ideal world")
+
+
+def _conditions_block(value: Any) -> dict[str, Any]:
+    """``train.conditions`` from YAML (a mapping) or ``--set`` (its text, YAML flow style)."""
+    if isinstance(value, str):
+        try:
+            value = yaml_io.load_yaml(value, what="train.conditions")
+        except yaml_io.YamlError as e:
+            raise ConfigError(f"{e}; {_CONDITIONS_ALLOWED}") from None
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"train.conditions = {value!r} is invalid; {_CONDITIONS_ALLOWED}")
+    return {str(k): v for k, v in value.items()}
+
+
+def train_conditions(cfg: Config) -> Conditions:
+    """``train.conditions`` validated (ConfigError naming the condition's field)."""
+    try:
+        return conditions_from_dict(cfg.train.conditions,
+                                    maif=cfg.env.name.startswith("maif"))
+    except ConditionsError as e:
+        raise ConfigError(f"train.{e}") from None
 
 
 _YAML_ALLOWED = "allowed: a YAML file holding {section: {field: value}}"
@@ -162,6 +193,7 @@ def validate(cfg: Config, resuming: bool = False) -> None:
          "cpu when train.learner_processes > 1 (the ranks average gradients on the CPU)",
          cfg.train.device)
     cfg.ppo.validate()
+    train_conditions(cfg)
     for section in cfg.algorithms.values():
         section.validate()
     for path, v in {"eval.interval": cfg.eval.interval,

@@ -21,7 +21,8 @@ import numpy.typing as npt
 
 from sdhn_policy.features import IDENTITY, default_features, feature_size, get_transform
 from sdhn_sim.envs.api import BatchedEnv, FloatArray, StepResult
-from sdhn_train.config import Config
+from sdhn_sim.envs.conditions import ConditionedEnv
+from sdhn_train.config import Config, train_conditions
 from sdhn_train.transitions import AssembledRollout
 
 
@@ -93,9 +94,18 @@ def wrap_features(env: BatchedEnv, features: str) -> BatchedEnv:
 
 def unwrap(env: Any) -> Any:
     """The innermost environment (for checkpoints, which snapshot its arrays)."""
-    while isinstance(env, FeatureEnv):
+    while isinstance(env, FeatureEnv | ConditionedEnv):
         env = env.inner_env
     return env
+
+
+def conditioned(env: Any) -> ConditionedEnv | None:
+    """The ``ConditionedEnv`` layer of a training env (``train.conditions``), if it has one."""
+    while isinstance(env, FeatureEnv | ConditionedEnv):
+        if isinstance(env, ConditionedEnv):
+            return env
+        env = env.inner_env
+    return None
 
 
 def featurize_obs(features: str, obs: npt.NDArray[np.float32]
@@ -108,10 +118,16 @@ def featurize_obs(features: str, obs: npt.NDArray[np.float32]
 EnvFactory = Callable[..., BatchedEnv]
 
 
-def make_training_env(cfg: Config, factory: EnvFactory, num_envs: int, seed: int,
-                      **extra: Any) -> BatchedEnv:
-    """``factory(name, num_envs, seed, **overrides)`` wrapped in the config's features."""
+def make_training_env(cfg: Config, factory: EnvFactory, num_envs: int, seed: int, *,
+                      conditions: bool = True, **extra: Any) -> BatchedEnv:
+    """``factory(name, num_envs, seed, **overrides)`` under the config's conditions
+    (``train.conditions``: the robots' observations and actions pass through the condition
+    model, seeded ``seed`` unless the block names one; ``conditions=False``: the ideal world,
+    as evaluation plays), wrapped in the config's features."""
     env = factory(cfg.env.name, num_envs, seed, **env_overrides(cfg, **extra))
+    cond = train_conditions(cfg)
+    if conditions and not cond.ideal:
+        env = ConditionedEnv(env, cond, seed=seed)
     return wrap_features(env, resolve_features(cfg))
 
 

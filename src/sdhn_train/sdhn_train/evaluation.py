@@ -34,12 +34,14 @@ def make_eval_envs(cfg: Config, factory: EnvFactory) -> dict[str, BatchedEnv]:
     if cfg.eval.interval <= 0:
         return {}
     if not cfg.env.name.startswith("maif"):
-        return {"": make_training_env(cfg, factory, cfg.eval.episodes, cfg.eval.seed)}
+        return {"": make_training_env(cfg, factory, cfg.eval.episodes, cfg.eval.seed,
+                                      conditions=False)}
     k = min(cfg.eval.instances, MAIF_SET_SIZE)
     cfg = copy.deepcopy(cfg)
     cfg.env.max_steps = None  # success and makespan always at the task's own step limit (500)
     kw: dict[str, Any] = {"instance_ids": list(range(k)), "instance_order": "round_robin"}
-    return {prefix: make_training_env(cfg, factory, k, cfg.eval.seed, instance_set=which, **kw)
+    return {prefix: make_training_env(cfg, factory, k, cfg.eval.seed, conditions=False,
+                                      instance_set=which, **kw)
             for prefix, which in (("", "train"), ("heldout_", "heldout"))}
 
 

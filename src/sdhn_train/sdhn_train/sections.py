@@ -86,6 +86,12 @@ class TrainConfig:
         1, "K data-parallel ranks (PPO learners): each collects on B/K envs and "
            "computes its share of every minibatch, gradients averaged before each step; rank 0 "
            "evaluates, logs and checkpoints (sdhn_train.data_parallel)")
+    conditions: dict[str, Any] = field(default_factory=dict, metadata={"help": (
+        "train under deployment conditions (domain randomisation): a conditions: block of "
+        "sdhn_sim.envs.conditions wrapped around the training envs ({} = the ideal world), "
+        "e.g. {latency: 1, lost_actions: 0.1, slow_fraction: 0.5, slow_rate: 0.5, randomise: "
+        "true}; randomise draws every severity per episode between the ideal world and the "
+        "given one. Evaluation stays in the ideal world")})
     retain_freed_memory: bool = opt(
         True, "glibc malloc keeps freed blocks up to 32 MiB for reuse instead of unmapping them "
               "(no page faults on every large temporary tensor; same numbers, fewer "

@@ -30,7 +30,7 @@ from sdhn_train.collector import RolloutCollector
 from sdhn_train.config import Config
 from sdhn_train.data_parallel import Command, Group
 from sdhn_train.device import resolve_device
-from sdhn_train.env_features import make_training_env, unwrap
+from sdhn_train.env_features import conditioned, make_training_env, unwrap
 from sdhn_train.envinfo import EnvInfo
 from sdhn_train.evaluation import evaluate_sets, headline, make_eval_envs
 from sdhn_train.learners.base import Learner, NonFiniteLossError
@@ -124,6 +124,8 @@ class Trainer:
         normaliser and (for ranks > 0, whose action draws differ) torch's RNG state."""
         env_arrays, env_values = ckpt.env_snapshot(unwrap(self.env))
         arrays = {f"env.{k}": v for k, v in env_arrays.items()}
+        if (cond := conditioned(self.env)) is not None:  # train.conditions: its counters
+            arrays.update({f"conditions.{k}": v for k, v in cond.model.state_dict().items()})
         arrays["collector.obs"] = self.collector.obs
         arrays["collector.state"] = self.collector.state
         arrays["collector.actor_h"] = self.collector.actor_h
@@ -182,6 +184,9 @@ class Trainer:
         ckpt.env_restore(unwrap(self.env),
                          {k[4:]: v for k, v in arrays.items() if k.startswith("env.")},
                          meta[f"{prefix}env_values"])
+        if (cond := conditioned(self.env)) is not None:
+            cond.model.load_state_dict({k[11:]: v for k, v in arrays.items()
+                                        if k.startswith("conditions.")})
         self.collector.obs = arrays["collector.obs"].copy()
         self.collector.state = arrays["collector.state"].copy()
         self.collector.actor_h = arrays["collector.actor_h"].copy()

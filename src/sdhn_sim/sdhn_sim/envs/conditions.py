@@ -27,6 +27,13 @@ failures            0 <= k < N        k robots, drawn per episode, each stop for
                                       drawn uniformly in [0, failure_horizon): they take 'stay'
                                       from then on and stay on the grid as obstacles
 failure_horizon     int >= 1          see failures (default 50: about a maif-10 makespan)
+randomise           bool              each episode of each env draws every severity above
+                                      uniformly between the ideal world and the given value
+                                      (training under randomised conditions): latency and
+                                      failures an integer in 0..k, lost_actions,
+                                      slow_fraction, position_noise and cell_misread in
+                                      [0, p], slow_rate in [r, 1]; false: every episode at the
+                                      given severities
 seed                int >= 0 or None  the model's seed; None: the environment's seed
 ==================  ================  ===========================================================
 
@@ -60,8 +67,8 @@ Use step by step (the simulator, B = 1; ``ConditionModel`` is what ``Conditioned
     model.failed, model.counts            # robots failed by now, cumulative counts per effect
 
 A ``conditions:`` YAML block (launch files, the sim's ``conditions`` parameter, the trainer's
-``env.conditions``) is a mapping of these field names; ``conditions_from_dict`` validates it with a
-one-line error naming the field.
+``train.conditions``) is a mapping of these field names; ``conditions_from_dict`` validates it
+with a one-line error naming the field.
 """
 
 from __future__ import annotations
@@ -101,6 +108,7 @@ class Conditions:
     cell_misread: float = 0.0
     failures: int = 0
     failure_horizon: int = 50
+    randomise: bool = False
     seed: int | None = None
 
     def validate(self, num_robots: int | None = None, maif: bool = True) -> Conditions:
@@ -110,9 +118,10 @@ class Conditions:
         _int("failure_horizon", self.failure_horizon, 1)
         if self.seed is not None:
             _int("seed", self.seed, 0)
-        if not isinstance(self.latency_random, bool):
-            raise ConditionsError(f"conditions.latency_random: got {self.latency_random!r}; "
-                                  "allowed: true or false")
+        for name in ("latency_random", "randomise"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConditionsError(f"conditions.{name}: got {getattr(self, name)!r}; "
+                                      "allowed: true or false")
         _prob("lost_actions", self.lost_actions, hi_open=True)
         for name in ("slow_fraction", "position_noise", "cell_misread"):
             _prob(name, getattr(self, name))
@@ -194,7 +203,10 @@ _M2 = np.uint64(0x94D049BB133111EB)
 _GOLD = np.uint64(0x9E3779B97F4A7C15)
 # what is drawn (a different stream each)
 _LATENCY, _LOST, _SLOW_PICK, _SLOW_STEP, _POS, _POS_DIR, _CELL, _CELL_VAL, _FAIL_PICK, \
-    _FAIL_STEP = range(10)
+    _FAIL_STEP, _SEVERITY = range(11)
+# the severities ``randomise`` draws per episode, in the order of their sub-streams of _SEVERITY
+_SEVERITIES = ("latency", "lost_actions", "slow_fraction", "slow_rate", "position_noise",
+               "cell_misread", "failures")
 
 
 def _mix(h: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
@@ -250,6 +262,9 @@ class ConditionModel:
         self.obs_age = np.zeros((b, n), dtype=np.int64)
         self.slow = np.zeros((b, n), dtype=bool)
         self.fail_step = np.full((b, n), np.iinfo(np.int64).max, dtype=np.int64)
+        # this episode's severity of every env (the given ones unless ``randomise``)
+        self.severity: dict[str, npt.NDArray[Any]] = {
+            name: np.full(b, getattr(c, name)) for name in _SEVERITIES}
         self.counts = {"steps": 0, "stale_obs": 0, "lost_actions": 0, "slow_stays": 0,
                        "failed_stays": 0, "failed_robots": 0, "position_noise": 0,
                        "cells_misread": 0, "episodes": 0}
@@ -260,6 +275,31 @@ class ConditionModel:
     def failed(self) -> BoolArray:
         """[B, N] robots that have failed by the current step."""
         return self.t[:, None] >= self.fail_step
+
+    def state_dict(self) -> dict[str, npt.NDArray[Any]]:
+        """Everything a resumed run needs to draw and delay as an uninterrupted one (the draws
+        themselves are counter-based: episode and step counters suffice)."""
+        out: dict[str, npt.NDArray[Any]] = {
+            "episode": self.episode, "t": self.t, "obs_age": self.obs_age, "slow": self.slow,
+            "fail_step": self.fail_step,
+            "counts": np.array([self.counts[k] for k in sorted(self.counts)], dtype=np.int64),
+            **{f"severity.{k}": v for k, v in self.severity.items()}}
+        if self._hist is not None:
+            out["history"] = self._hist
+        return out
+
+    def load_state_dict(self, arrays: Mapping[str, npt.NDArray[Any]]) -> None:
+        """Restore ``state_dict``; ValueError naming the array that does not fit."""
+        for name in ("episode", "t", "obs_age", "slow", "fail_step"):
+            _copy_into(name, getattr(self, name), arrays[name])
+        for k, v in self.severity.items():
+            _copy_into(f"severity.{k}", v, arrays[f"severity.{k}"])
+        counts = arrays["counts"]
+        if counts.shape != (len(self.counts),):
+            raise ValueError(f"conditions counts: shape {counts.shape}, expected "
+                             f"({len(self.counts)},)")
+        self.counts = {k: int(v) for k, v in zip(sorted(self.counts), counts, strict=True)}
+        self._hist = arrays["history"].copy() if "history" in arrays else None
 
     def start(self, envs: Sequence[int] | npt.NDArray[np.int64] | None,
               raw_obs: FloatArray) -> None:
@@ -278,21 +318,40 @@ class ConditionModel:
         self.obs_age[e] = 0
         key, ep = self._keys[e][:, None], self.episode[e][:, None]
         r = self._robots[None, :]
+        if c.randomise:
+            self._draw_severities(e, key[:, 0], ep[:, 0])
+        sev = {name: v[e] for name, v in self.severity.items()}
         self.slow[e] = False
-        m = round(c.slow_fraction * n)
-        if m and c.slow_rate < 1:
-            rank = np.argsort(_uniform(key, ep, _SLOW_PICK, r), axis=1, kind="stable")[:, :m]
-            rows = np.zeros((e.size, n), dtype=bool)
-            np.put_along_axis(rows, rank, True, axis=1)
-            self.slow[e] = rows
+        m = np.rint(sev["slow_fraction"] * n).astype(np.int64)  # round half to even, as round()
+        if c.slow_fraction and c.slow_rate < 1:
+            order = np.argsort(_uniform(key, ep, _SLOW_PICK, r), axis=1, kind="stable")
+            rank = np.argsort(order, axis=1, kind="stable")  # each robot's place in the draw
+            self.slow[e] = (rank < m[:, None]) & (sev["slow_rate"] < 1)[:, None]
         self.fail_step[e] = np.iinfo(np.int64).max
         if c.failures:
             pick = np.argsort(_uniform(key, ep, _FAIL_PICK, r), axis=1, kind="stable")
             pick = pick[:, :c.failures]
-            at = np.floor(_uniform(key, ep, _FAIL_STEP, pick) * c.failure_horizon)
+            at = np.floor(_uniform(key, ep, _FAIL_STEP, pick) * c.failure_horizon
+                          ).astype(np.int64)
+            at = np.where(np.arange(c.failures)[None, :] < sev["failures"][:, None],
+                          at, np.iinfo(np.int64).max)  # this episode fails fewer robots
             rows_f = np.full((e.size, n), np.iinfo(np.int64).max, dtype=np.int64)
-            np.put_along_axis(rows_f, pick, at.astype(np.int64), axis=1)
+            np.put_along_axis(rows_f, pick, at, axis=1)
             self.fail_step[e] = rows_f
+
+    def _draw_severities(self, e: IntArray, key: IntArray, ep: IntArray) -> None:
+        """``randomise``: this episode's severities of envs ``e``, uniform between the ideal
+        world and the given ones (integers for latency and failures)."""
+        c = self.cond
+        for i, name in enumerate(_SEVERITIES):
+            u = _uniform(key, ep, _SEVERITY, i)
+            given = getattr(c, name)
+            if name in ("latency", "failures"):
+                self.severity[name][e] = np.floor(u * (given + 1)).astype(np.int64)
+            elif name == "slow_rate":
+                self.severity[name][e] = given + u * (1.0 - given)
+            else:
+                self.severity[name][e] = u * given
 
     def fail(self, env: int, robot: int, since: int) -> None:
         """Fail ``robot`` of ``env`` from step ``since`` of its current episode on, outside the
@@ -321,8 +380,9 @@ class ConditionModel:
             out = raw_obs.copy()
             self.obs_age[:] = 0
         else:
-            d = (np.floor(_uniform(key, ep, t, _LATENCY, r) * (k + 1)).astype(np.int64)
-                 if c.latency_random else np.full(self.obs_age.shape, k, dtype=np.int64))
+            k_e = self.severity["latency"][:, None]  # k in every env unless randomised
+            d = (np.floor(_uniform(key, ep, t, _LATENCY, r) * (k_e + 1)).astype(np.int64)
+                 if c.latency_random else np.broadcast_to(k_e, self.obs_age.shape))
             d = np.minimum(d, t)
             self.obs_age = d
             self.counts["stale_obs"] += int(np.count_nonzero(d))
@@ -336,7 +396,7 @@ class ConditionModel:
     def _position_noise(self, out: FloatArray, key: IntArray, ep: IntArray, t: IntArray,
                         r: IntArray) -> None:
         size = self.grid_size or 0
-        hit = _uniform(key, ep, t, _POS, r) < self.cond.position_noise
+        hit = _uniform(key, ep, t, _POS, r) < self.severity["position_noise"][:, None]
         if not hit.any():
             return
         direction = 1 + np.floor(_uniform(key, ep, t, _POS_DIR, r) * 4).astype(np.int64)
@@ -351,7 +411,8 @@ class ConditionModel:
                  r: IntArray) -> None:
         cells = np.arange(_WIN * _WIN, dtype=np.int64)[None, None, :]
         k3 = (key[:, :, None], ep[:, :, None], t[:, :, None])
-        hit = _uniform(*k3, _CELL, r[:, :, None], cells) < self.cond.cell_misread
+        p = self.severity["cell_misread"][:, None, None]
+        hit = _uniform(*k3, _CELL, r[:, :, None], cells) < p
         hit[:, :, _CENTRE - _COORDS] = False  # the robot's own cell
         if not hit.any():
             return
@@ -377,11 +438,12 @@ class ConditionModel:
         self.counts["failed_stays"] += int(np.count_nonzero(failed & (a != STAY)))
         stay = failed.copy()
         if self.slow.any():
-            idle = self.slow & (_uniform(key, ep, t, _SLOW_STEP, r) >= c.slow_rate)
+            rate = self.severity["slow_rate"][:, None]
+            idle = self.slow & (_uniform(key, ep, t, _SLOW_STEP, r) >= rate)
             self.counts["slow_stays"] += int(np.count_nonzero(idle & ~stay & (a != STAY)))
             stay |= idle
         if c.lost_actions:
-            lost = _uniform(key, ep, t, _LOST, r) < c.lost_actions
+            lost = _uniform(key, ep, t, _LOST, r) < self.severity["lost_actions"][:, None]
             self.counts["lost_actions"] += int(np.count_nonzero(lost & ~stay & (a != STAY)))
             stay |= lost
         a[stay] = STAY
@@ -389,9 +451,17 @@ class ConditionModel:
         return a
 
 
+def _copy_into(name: str, dst: npt.NDArray[Any], src: npt.NDArray[Any]) -> None:
+    if dst.shape != src.shape:
+        raise ValueError(f"conditions {name}: shape {src.shape}, expected {dst.shape}")
+    dst[...] = src
+
+
 class ConditionedEnv:
     """A ``BatchedEnv`` under conditions: observations pass through ``ConditionModel.observe``
-    and actions through ``ConditionModel.act``. ``final_obs`` stays the raw last observation.
+    and actions through ``ConditionModel.act``. ``final_obs`` stays the raw last observation,
+    and the state stays the wrapped env's (the world as it is: what a centralised critic
+    learns from when training under conditions, ``train.conditions``).
 
     ``outcomes`` (set by every ``step``) holds one ``Outcome`` per env whose episode ended at that
     step, or, under failures (MAIF), whose survivors all stood on their goals for the first time
@@ -424,19 +494,15 @@ class ConditionedEnv:
     def obs_age(self) -> IntArray:
         return self.model.obs_age
 
-    def _state(self, obs: FloatArray) -> FloatArray:
-        return obs.reshape(obs.shape[0], -1)
-
     def reset(self, seed: int | None = None) -> tuple[FloatArray, FloatArray]:
-        obs, _ = self.inner_env.reset(seed=seed)
+        obs, state = self.inner_env.reset(seed=seed)
         if seed is not None and self.conditions.seed is None:
             self.model = ConditionModel(self.conditions, self.num_envs, self.num_robots, seed,
                                         self.model.grid_size)
         self.model.start(None, obs)
         self._taken[:] = False
         self.outcomes = []
-        seen = self.model.observe(obs)
-        return seen, self._state(seen)
+        return self.model.observe(obs), state
 
     def step(self, actions: npt.ArrayLike) -> StepResult:
         m = self.model
@@ -459,7 +525,7 @@ class ConditionedEnv:
             m.start(ended, res.obs)
             self._taken[ended] = False
         seen = m.observe(res.obs)
-        return StepResult(obs=seen, state=self._state(seen), reward=res.reward,
+        return StepResult(obs=seen, state=res.state, reward=res.reward,
                           terminated=res.terminated, truncated=res.truncated,
                           final_obs=res.final_obs, final_state=res.final_state,
                           episodes=res.episodes)

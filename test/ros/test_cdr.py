@@ -1,6 +1,8 @@
 """The trainer's CDR readers against rclpy's own serialisation, field for field: every frame_id
 and env_name length (all paddings), empty and long arrays, extreme values; malformed bytes raise
-CdrError."""
+CdrError. The simulator's and actor's CDR writers against it too: same length, and rclpy decodes
+them to the message it would have serialised (padding bytes are not compared: rclpy leaves them
+uninitialised)."""
 
 from __future__ import annotations
 
@@ -8,9 +10,16 @@ import array
 
 import numpy as np
 import pytest
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 
-from sdhn_base.ros.cdr import CdrError, read_action, read_observation, read_state
+from sdhn_base.ros.cdr import (
+    ActionWriter,
+    CdrError,
+    ObservationWriter,
+    read_action,
+    read_observation,
+    read_state,
+)
 from sdhn_msgs.msg import RobotAction, RobotObservation, TeamState
 
 
@@ -66,3 +75,34 @@ def test_malformed_bytes_raise() -> None:
         read_action(good[:10])
     with pytest.raises(CdrError):
         read_state(good[:30])
+
+
+@pytest.mark.parametrize("frame", ["", "m", "ma", "map", "map1", "world_frame"])
+@pytest.mark.parametrize("size", [0, 1, 57, 300])
+def test_observation_writer(frame: str, size: int) -> None:
+    rng = np.random.default_rng(size)
+    w = ObservationWriter(19, 20, size, frame)
+    for step, (sec, ns) in enumerate([(1_796_000_000, 999_999_999), (0, 0), (2**31 - 1, 1)]):
+        values = rng.standard_normal(size).astype(np.float32)
+        m = RobotObservation(episode=2**32 - 1, step=step, robot_id=19, num_robots=20,
+                             reward=-3.25 * step, terminated=step == 1, truncated=step == 2)
+        m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec = frame, sec, ns
+        m.obs = f32(values)
+        data = w.write(sec * 10**9 + ns, 2**32 - 1, step, values, reward=-3.25 * step,
+                       terminated=step == 1, truncated=step == 2)
+        assert len(data) == len(serialize_message(m))
+        assert deserialize_message(data, RobotObservation) == m
+        assert read_observation(data).step == step  # and the readers read it
+
+
+@pytest.mark.parametrize("frame", ["", "m", "ma", "map", "map1"])
+def test_action_writer(frame: str) -> None:
+    w = ActionWriter(65535, frame)
+    for k, (action, log_prob, version) in enumerate([(255, -0.125, 2**32 - 2), (0, 0.0, 0)]):
+        m = RobotAction(episode=7 + k, step=8, robot_id=65535, action=action, log_prob=log_prob,
+                        policy_version=version)
+        m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec = frame, 5, 6 + k
+        data = w.write(5 * 10**9 + 6 + k, 7 + k, 8, action=action, log_prob=log_prob,
+                       policy_version=version)
+        assert len(data) == len(serialize_message(m))
+        assert deserialize_message(data, RobotAction) == m

@@ -32,6 +32,7 @@ from collections import Counter
 from collections.abc import Sequence
 from typing import Any
 
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from rclpy.context import Context
 from rclpy.lifecycle import (
@@ -145,7 +146,7 @@ class ActorNode(LifecycleNode):
         LifecycleNodeMixin.__init__(self, enable_communication_interface=p["managed"])
         self.phase = "unconfigured"  # the lifecycle state, for logs and diagnostics
         self.configure_error = ""  # why the last configure failed
-        self._action = RobotAction(robot_id=robot_id)
+        self._action = cdr.ActionWriter(robot_id)  # the action's CDR, rewritten per step
         self._target = PoseStamped()
         self._target.header.frame_id = FRAME_ID
         self.drops: Counter[str] = Counter()
@@ -296,17 +297,18 @@ class ActorNode(LifecycleNode):
                                done=msg.terminated or msg.truncated)
         if isinstance(out, Decision):
             self.answered = True
-            # One message, refilled per step (rclpy serialises at publish): no per-step message,
-            # Header and Time objects. The stamp is the wall clock the node's ROS clock reads
-            # (no simulated time in this graph), without building rclpy Time objects.
-            a = self._action
-            a.header.stamp.sec, a.header.stamp.nanosec = divmod(time.time_ns(), 1_000_000_000)
-            a.episode, a.step = msg.episode, msg.step
-            a.action, a.log_prob, a.policy_version = out.action, out.log_prob, out.version
-            self.action_pub.publish(a)
+            # The action written straight as CDR and published as bytes (sdhn_base.ros.cdr): no
+            # message filled through its checked setters, no conversion to C. The stamp is the
+            # wall clock the node's ROS clock reads (no simulated time in this graph), without
+            # building rclpy Time objects.
+            now = time.time_ns()
+            self.action_pub.publish(self._action.write(
+                now, msg.episode, msg.step, action=out.action, log_prob=out.log_prob,
+                policy_version=out.version))
             self.latency_ms.add((time.perf_counter() - t0) * 1e3)
             if self.target_pub is not None and self.target_pub.get_subscription_count():
-                self.publish_target(msg.obs, out.action, a.header.stamp)
+                sec, nanosec = divmod(now, 1_000_000_000)
+                self.publish_target(msg.obs, out.action, Time(sec=sec, nanosec=nanosec))
         elif isinstance(out, Drop):
             self.drop(out.kind, f"episode {msg.episode} step {msg.step}: {out.reason}")
             # Weights that do not fit the environment: the simulator re-sends step 0, every

@@ -142,3 +142,81 @@ def read_state(data: bytes) -> State:
     except struct.error as e:
         raise CdrError(str(e)) from None
     return State(episode, step, num_robots, state, team_reward, terminated, truncated, missed)
+
+
+# --- writers: the step messages' CDR without rclpy's message objects --------------------------
+#
+# Why: filling a generated message costs one checked Python setter per field and an
+# array.array per observation, and rclpy then converts the object to C before serialising it.
+# The step messages have a fixed layout once the frame_id and the obs length are known, so each
+# publisher keeps one buffer, rewrites the changing fields in place and hands DDS the bytes
+# (``Publisher.publish`` accepts serialized bytes). The bytes are also what a recording needs.
+# The tests check every writer byte for byte against ``serialize_message``.
+
+_STAMP = struct.Struct("<iI")  # header.stamp: sec (int32), nanosec (uint32)
+_STEP = struct.Struct("<II")  # episode, step
+_OBS_END = struct.Struct("<f??")  # reward, terminated, truncated
+_ACT_BODY = struct.Struct("<IIHBxfI")  # episode, step, robot_id, action, (pad), log_prob, version
+_NS = 1_000_000_000
+
+
+def _header(frame_id: str) -> tuple[bytearray, int]:
+    """Encapsulation, a zero stamp and ``frame_id``; (buffer, absolute end of the header)."""
+    name = frame_id.encode() + b"\x00"
+    buf = bytearray(_LE + b"\x00\x00" + bytes(8) + _U32.pack(len(name)) + name)
+    return buf, len(buf)
+
+
+def _pad(buf: bytearray, n: int) -> int:
+    """Pad ``buf`` to the next multiple of ``n`` (CDR alignment); the new length."""
+    end = _align(len(buf), n)
+    buf.extend(bytes(end - len(buf)))
+    return end
+
+
+class ObservationWriter:
+    """``sdhn_msgs/RobotObservation`` bytes for one robot (fixed ``robot_id``, ``num_robots``,
+    ``frame_id`` and obs length), rewritten in place each step."""
+
+    def __init__(self, robot_id: int, num_robots: int, obs_size: int,
+                 frame_id: str = "map") -> None:
+        buf, _ = _header(frame_id)
+        self._ids = _pad(buf, 4)
+        buf.extend(_IDS.pack(0, 0, robot_id, num_robots))
+        _pad(buf, 4)
+        buf.extend(_U32.pack(obs_size))
+        self._obs = len(buf)
+        buf.extend(bytes(4 * obs_size))
+        self._end = _pad(buf, 4)
+        buf.extend(_OBS_END.pack(0.0, False, False))
+        self._buf = buf
+        self.obs = np.frombuffer(buf, np.float32, obs_size, self._obs)  # writable view into buf
+
+    def write(self, stamp_ns: int, episode: int, step: int, obs: npt.ArrayLike, *,
+              reward: float, terminated: bool, truncated: bool) -> bytes:
+        """The message's CDR bytes (a copy: the buffer is reused on the next call)."""
+        buf = self._buf
+        _STAMP.pack_into(buf, 4, *divmod(stamp_ns, _NS))
+        _STEP.pack_into(buf, self._ids, episode, step)
+        self.obs[:] = obs
+        _OBS_END.pack_into(buf, self._end, reward, terminated, truncated)
+        return bytes(buf)
+
+
+class ActionWriter:
+    """``sdhn_msgs/RobotAction`` bytes for one robot (fixed ``robot_id`` and ``frame_id``)."""
+
+    def __init__(self, robot_id: int, frame_id: str = "") -> None:
+        buf, _ = _header(frame_id)
+        self._body = _pad(buf, 4)
+        buf.extend(_ACT_BODY.pack(0, 0, robot_id, 0, 0.0, 0))
+        self._buf = buf
+        self.robot_id = robot_id
+
+    def write(self, stamp_ns: int, episode: int, step: int, *, action: int, log_prob: float,
+              policy_version: int) -> bytes:
+        buf = self._buf
+        _STAMP.pack_into(buf, 4, *divmod(stamp_ns, _NS))
+        _ACT_BODY.pack_into(buf, self._body, episode, step, self.robot_id, action, log_prob,
+                            policy_version)
+        return bytes(buf)

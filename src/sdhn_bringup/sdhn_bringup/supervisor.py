@@ -42,9 +42,13 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
                           its goal dropped, survivors' success in episodes.csv; 0 = never;
                           faults need >= 1)
     run_dir: runs/...     team_ns: /sdhn                       recorder: true
-    recorder: {format: mcap | bag}   (true = mcap: <run_dir>/recording.mcap, one bare MCAP file;
-                          bag: <run_dir>/recording/, a rosbag2 bag directory with
-                          recording_0.mcap and metadata.yaml; --set recorder.format=bag)
+    recorder: {format: mcap | bag, where: node | sim}   (true = mcap: <run_dir>/recording.mcap,
+                          one bare MCAP file; bag: <run_dir>/recording/, a rosbag2 bag
+                          directory with recording_0.mcap and metadata.yaml; --set
+                          recorder.format=bag. where: node = the recorder node, its own
+                          process, every topic of the team; sim = inside the simulator process,
+                          the topics it sends and receives (obs, action, state, episode), with
+                          no second DDS hop: deploy mode only)
     restart: {policy: never | on-failure, max_restarts: 3}
     managed: false        (true: actors start as unconfigured lifecycle nodes and the launcher
                           drives each one configure -> activate through the standard
@@ -157,6 +161,7 @@ class LaunchConfig:
     team_ns: str = "/sdhn"
     recorder: bool = True
     recorder_format: str = "mcap"  # mcap (a bare .mcap file) | bag (a rosbag2 bag directory)
+    recorder_where: str = "node"  # node (the recorder process) | sim (inside the simulator)
     wait_for_observers: bool = True  # the sim waits for trainer/recorder subscriptions at step 0
     start_timeout: float = 60.0
     stop_timeout: float = 10.0  # seconds from SIGINT to SIGKILL when stopping a child
@@ -229,6 +234,13 @@ def validate(cfg: LaunchConfig) -> None:
     if cfg.recorder_format not in RECORDER_FORMATS:
         raise LaunchConfigError(f"recorder.format: got {cfg.recorder_format!r}; allowed: "
                                 f"{', '.join(RECORDER_FORMATS)}")
+    if cfg.recorder_where not in RECORDER_WHERE:
+        raise LaunchConfigError(f"recorder.where: got {cfg.recorder_where!r}; allowed: "
+                                f"{', '.join(RECORDER_WHERE)}")
+    if cfg.recorder and cfg.recorder_where == "sim" and cfg.mode == "train":
+        raise LaunchConfigError("recorder.where: sim records only the simulator's topics, and "
+                                "mode train also publishes policy/weights and hypergraph; "
+                                "allowed in mode train: node")
     n = team_size(cfg.env)
     if cfg.robots not in (0, n):
         raise LaunchConfigError(f"robots: {cfg.env} has {n} robots, got {cfg.robots}; "
@@ -392,7 +404,8 @@ def anchored(value: Any, base: Path) -> Any:
 
 
 RECORDER_FORMATS = ("mcap", "bag")
-RECORDER_KEYS = ("enabled", "format")
+RECORDER_WHERE = ("node", "sim")
+RECORDER_KEYS = ("enabled", "format", "where")
 
 
 def set_recorder(cfg: LaunchConfig, value: Any, key: str = "") -> None:
@@ -409,7 +422,14 @@ def set_recorder(cfg: LaunchConfig, value: Any, key: str = "") -> None:
                                 f"{', '.join(RECORDER_KEYS)}")
     if "format" in value:
         cfg.recorder_format = str(value["format"])
+    if "where" in value:
+        cfg.recorder_where = str(value["where"])
     set_field(cfg, "recorder", value.get("enabled", True))
+
+
+def recorder_node(cfg: LaunchConfig) -> bool:
+    """Whether the run has the recorder node (else no recording, or the simulator records)."""
+    return cfg.recorder and cfg.recorder_where == "node"
 
 
 def recording_path(cfg: LaunchConfig, run: Path) -> Path:
@@ -502,19 +522,22 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
     """The parameters of every node of one run, by node full name, in start order."""
     ns, run = cfg.team_ns, Path(cfg.run_dir).resolve()  # ns checked by validate()
     nodes: NodeParameters = {}
-    if cfg.recorder:
+    if recorder_node(cfg):
         nodes[topics.absolute(ns, "recorder")] = {
             "team_ns": ns, "output": str(recording_path(cfg, run))}
     if cfg.mode == "train":
         nodes[topics.absolute(ns, "trainer")] = {
             "team_ns": ns, "env": cfg.env, "seed": cfg.seed, "run_dir": str(run / "trainer"),
             **cfg.trainer}
-    extra = (int(cfg.recorder) + int(cfg.mode == "train")) if cfg.wait_for_observers else 0
+    extra = ((int(recorder_node(cfg)) + int(cfg.mode == "train")) if cfg.wait_for_observers
+             else 0)
     nodes[topics.absolute(ns, "sim")] = {
         "env": cfg.env, "seed": cfg.seed, "episodes": cfg.episodes,
         "step_deadline": float(cfg.step_deadline), "instance": cfg.instance,
         "start_timeout": float(cfg.start_timeout), "max_steps": cfg.max_steps,
         "extra_subscribers": extra, "events_file": str(status_dir(run) / SIM_EVENTS),
+        "recording": (str(recording_path(cfg, run))
+                      if cfg.recorder and cfg.recorder_where == "sim" else ""),
         "clock": cfg.clock, "rate_hz": float(cfg.rate_hz),
         "conditions": yaml.safe_dump(cfg.conditions, default_flow_style=True).strip()
         if cfg.conditions else "",
@@ -590,7 +613,7 @@ def graph(cfg: LaunchConfig) -> list[ChildSpec]:
     children: list[ChildSpec] = []
     if cfg.discovery == "server":
         children.append(discovery_server(cfg.discovery_port))
-    if cfg.recorder:
+    if recorder_node(cfg):
         # The recorder finds its topics in the graph (get_topic_names_and_types): a plain client
         # of a discovery server learns only the endpoints that match its own, a super client all.
         children.append(ChildSpec("recorder", "sdhn_sim", "recorder",
@@ -939,7 +962,8 @@ class Launcher:
             signal.signal(signum, self.on_signal)
         self.write_config()
         self.write_params()
-        rec = "on" if self.cfg.recorder else "off"
+        rec = (("on (in the simulator)" if self.cfg.recorder_where == "sim" else "on")
+               if self.cfg.recorder else "off")
         self.say(f"run dir {self.run_dir}; mode {self.cfg.mode}, env {self.cfg.env}, "
                  f"{self.cfg.robots} actor processes (actions {describe_actions(self.cfg)}), "
                  f"recorder {rec}")

@@ -32,6 +32,7 @@ import signal
 import time
 from collections import Counter
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -42,6 +43,7 @@ from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+from rclpy.serialization import serialize_message
 from rclpy.timer import Timer
 
 from sdhn_base.diagnostics import Report, WindowCounts, drop_values, make_report
@@ -58,6 +60,8 @@ from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.faults import FaultsError, parse_faults
 from sdhn_sim.lockstep import Frame, LockstepSim, SimConfig, SimConfigError
 from sdhn_sim.poses import FRAME_ID, cell_center
+from sdhn_sim.recording.queued import QueuedRecording, graph_offers
+from sdhn_sim.recording.reader import fresh_path
 
 LOG_EVERY_S = 2.0  # period of the progress line
 
@@ -82,8 +86,15 @@ def _parameter(f: dataclasses.Field[Any]) -> tuple[Any, ParameterDescriptor]:
 PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     **{f.name: _parameter(f) for f in dataclasses.fields(SimConfig)},
     "events_file": ("", string("JSON-lines file for a supervisor's events; '' = none")),
+    "recording": ("", string(
+        "record what this simulator sends and receives (every robot's obs and action, state, "
+        "episode) into this .mcap file, or a rosbag2 bag directory (a path not ending in "
+        ".mcap), inside this process: no recorder node needed for these topics; '' = none "
+        "(an existing file or directory is never overwritten: -1, -2... is appended)")),
 }
-NODE_ONLY = ("events_file",)
+NODE_ONLY = ("events_file", "recording")
+OBS_TYPE, ACTION_TYPE = "sdhn_msgs/msg/RobotObservation", "sdhn_msgs/msg/RobotAction"
+STATE_TYPE, EPISODE_TYPE = "sdhn_msgs/msg/TeamState", "sdhn_msgs/msg/EpisodeSummary"
 
 
 def sim_config(p: dict[str, Any]) -> SimConfig:
@@ -122,9 +133,14 @@ class SimNode(Node):
             self.create_subscription(RobotAction, topics.robot_action(i),
                                      functools.partial(self.on_action, i), STEP, raw=True)
             for i in range(n)]
-        self._obs_msgs = [RobotObservation(robot_id=i, num_robots=n) for i in range(n)]
-        for m in self._obs_msgs:
-            m.header.frame_id = "map"
+        # Each robot's observation is written straight as CDR (sdhn_base.ros.cdr) and published
+        # as bytes: no message object filled through its checked setters, no conversion to C,
+        # and the bytes are what the in-process recording writes.
+        self._obs_writers = [cdr.ObservationWriter(i, n, self.sim.obs_size, FRAME_ID)
+                             for i in range(n)]
+        self._obs_topics = [p.topic_name for p in self.obs_pubs]
+        self._action_topics = [s.topic_name for s in self.action_subs]
+        self.recording = self.open_recording(str(p["recording"]))
         self._state_msg = TeamState(env_name=cfg.env, num_robots=n)
         self._state_msg.header.frame_id = "map"
         self.poses_pub = self.create_publisher(PoseArray, topics.POSES, POSES)
@@ -158,6 +174,30 @@ class SimNode(Node):
             f"conditions: {cfg.conditions.label()} "
             f"ns={self.get_namespace()}; waiting for "
             f"{n} actors")
+
+    def open_recording(self, output: str) -> QueuedRecording | None:
+        """The in-process recording (parameter ``recording``), as the recorder node names and
+        writes its file: same schemas, channels, QoS metadata and ``rosbag2`` record."""
+        if not output:
+            return None
+        requested = Path(output)
+        bag_dir = requested.suffix != ".mcap"
+        if bag_dir and not requested.name.strip("."):
+            raise ConfigError(f"recording: {output!r}; allowed: '' (none), a path ending in "
+                              ".mcap, or a bag directory to create")
+        where = fresh_path(requested)
+        path = where / f"{where.name}_0.mcap" if bag_dir else where
+        contract = {t: STEP for t in [*self._obs_topics, *self._action_topics,
+                                      self.state_pub.topic_name, self.episode_pub.topic_name]}
+        try:
+            recording = QueuedRecording(
+                path, bag_dir, lambda topic: graph_offers(self, topic, contract[topic])
+                or ([contract[topic]], ""), self.get_logger().error)
+        except OSError as e:
+            raise ConfigError(f"recording: cannot write {path}: {e}") from e
+        note = "" if where == requested else f" ({requested} exists)"
+        self.get_logger().info(f"recording this simulator's topics to {path}{note}")
+        return recording
 
     # -- start-up and deadline ---------------------------------------------------------------
 
@@ -211,6 +251,9 @@ class SimNode(Node):
 
     def on_action(self, robot: int, data: bytes) -> None:
         # Raw CDR read at its offsets (sdhn_base.ros.cdr): no Python message per action.
+        if self.recording is not None:  # every message on the topic, as a recorder receives it
+            now = time.time_ns()
+            self.recording.put(self._action_topics[robot], ACTION_TYPE, data, now, now)
         if not self.stepping:
             self.drop(DropKind.NOT_STARTED,
                       f"action from robot {robot} before step 0 or after the end")
@@ -237,10 +280,10 @@ class SimNode(Node):
     def resend_first_step(self) -> None:
         frame, silent = self.sim.frame, self.sim.missing()
         assert frame is not None
-        stamp = self.get_clock().now().to_msg()
+        now = time.time_ns()
         for i in silent:
             if not self.sim.cut[i]:
-                self.obs_pubs[i].publish(self.observation(frame, i, stamp))
+                self.send_observation(frame, i, now)
         self.get_logger().info(f"first step: no answer yet from robots {silent}; re-sent")
         self.deadline = time.monotonic() + self.cfg.step_deadline
 
@@ -281,31 +324,41 @@ class SimNode(Node):
     def publish(self, f: Frame) -> None:
         self.stepping = True
         self.write_sim_events()
-        stamp = self.get_clock().now().to_msg()
-        for i, pub in enumerate(self.obs_pubs):
+        # The wall clock the node's ROS clock reads (no simulated time in this graph), without
+        # rclpy's Time objects: the stamp of every message of this step and its recording time.
+        now = time.time_ns()
+        for i in range(self.sim.num_robots):
             if not self.sim.cut[i]:  # a scheduled fault: this robot is sent nothing more
-                pub.publish(self.observation(f, i, stamp))
+                self.send_observation(f, i, now)
         # TeamState is for observers (trainer, recorder, viz); a deployment without them has no
         # reader of it. A volatile message goes only to readers matched at publish time, so
         # skipping it while none is matched changes nothing a subscriber can see, and saves
         # filling, serialising and handing one message of N+1 to DDS every step.
-        if self.state_pub.get_subscription_count():
-            self.publish_state(f, stamp)
+        # The in-process recording holds every state.
+        readers = self.state_pub.get_subscription_count()
+        if readers or self.recording is not None:
+            self.publish_state(f, now, readers > 0)
         if self.poses_pub.get_subscription_count():  # the same reasoning
-            self.publish_poses(f, stamp)
+            sec, nanosec = divmod(now, 1_000_000_000)
+            self.publish_poses(f, Time(sec=sec, nanosec=nanosec))
         self.deadline = (float("inf") if f.done or (self.cfg.realtime and not self.handshake)
                          else time.monotonic() + self.cfg.step_deadline)
 
-    def publish_state(self, f: Frame, stamp: Time) -> None:
+    def publish_state(self, f: Frame, now_ns: int, send: bool) -> None:
+        """TeamState of frame f: sent when ``send``, recorded when recording."""
         s = self._state_msg
-        s.header.stamp = stamp
+        s.header.stamp.sec, s.header.stamp.nanosec = divmod(now_ns, 1_000_000_000)
         s.episode, s.step = f.episode, f.step
         s.state = array.array("f", np.ascontiguousarray(f.state, dtype=np.float32).tobytes())
         s.positions = array.array("i", f.positions.astype(np.int32).tobytes())
         s.team_reward, s.terminated, s.truncated = float(f.reward), f.terminated, f.truncated
         s.makespan_so_far, s.missed_actions = f.step, f.missed
         s.instance_id = f.instance_id
-        self.state_pub.publish(s)
+        data = serialize_message(s)
+        if send:
+            self.state_pub.publish(data)
+        if self.recording is not None:
+            self.recording.put(self.state_pub.topic_name, STATE_TYPE, data, now_ns, now_ns)
 
     def publish_poses(self, f: Frame, stamp: Time) -> None:
         """Every robot's cell centre (the viewer's convention, sdhn_sim.poses), robot i at i."""
@@ -343,25 +396,36 @@ class SimNode(Node):
                        "superseded_actions": rt.superseded, "expired_actions": rt.expired}
             values |= {f"staleness/{k}": c for k, c in sorted(rt.applied.items())}
         values |= drop_values(self.drops, self._drops_window.new(self.drops))
+        judged: tuple[str, ...] = ("missed_actions_in_window", "missed_fraction_in_window",
+                                   "dropped_in_window")
         note = "" if self.started else f"waiting for {self.sim.num_robots} actors"
+        rec = self.recording
+        if rec is not None:  # the in-process recording, judged as the recorder node's
+            values |= {"recording": str(rec.path), "messages_written": rec.writer.messages_written,
+                       "write_queue_depth": rec.queue_depth, "not_written": rec.not_written}
+            judged += ("write_queue_depth", "not_written")
+            if rec.error:
+                note = f"recording stopped: {rec.error}"
         return make_report(self.get_fully_qualified_name(), self.get_namespace(), values,
-                           ("missed_actions_in_window", "missed_fraction_in_window",
-                            "dropped_in_window"), note)
+                           judged, note)
 
-    def observation(self, f: Frame, i: int, stamp: Time) -> RobotObservation:
-        """Robot i's observation of frame f, in robot i's one message object, refilled per step
-        (rclpy serialises at publish): no per-step message, Header and Time objects."""
-        m = self._obs_msgs[i]
-        m.header.stamp = stamp
-        m.episode, m.step = f.episode, f.step
-        m.obs = array.array("f", np.ascontiguousarray(f.obs[i], dtype=np.float32).tobytes())
-        m.reward, m.terminated, m.truncated = float(f.reward), f.terminated, f.truncated
-        return m
+    def send_observation(self, f: Frame, i: int, now_ns: int) -> None:
+        """Publish (and record) robot i's observation of frame f, stamped ``now_ns``."""
+        data = self._obs_writers[i].write(now_ns, f.episode, f.step, f.obs[i],
+                                          reward=float(f.reward), terminated=bool(f.terminated),
+                                          truncated=bool(f.truncated))
+        self.obs_pubs[i].publish(data)
+        if self.recording is not None:
+            self.recording.put(self._obs_topics[i], OBS_TYPE, data, now_ns, now_ns)
 
     def publish_summary(self, r: EpisodeResult) -> None:
         m = r.to_message(EpisodeSummary())
-        m.header.stamp = self.get_clock().now().to_msg()
-        self.episode_pub.publish(m)
+        now = time.time_ns()
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(now, 1_000_000_000)
+        data = serialize_message(m)
+        self.episode_pub.publish(data)
+        if self.recording is not None:
+            self.recording.put(self.episode_pub.topic_name, EPISODE_TYPE, data, now, now)
         self.events.write("episode", **r.to_event(), **self.realtime_event())
         self.get_logger().info(
             f"episode {r.episode} done: makespan={r.makespan_text} length={r.length} "
@@ -390,6 +454,18 @@ class SimNode(Node):
         return {"clock": "realtime", "rate_hz": self.cfg.rate_hz, **counts.to_event(),
                 **({"late_ticks": self.late_ticks} if total else {})}
 
+    def close_recording(self) -> None:
+        """Write what is queued and finish the file (summary, index, ``rosbag2`` record)."""
+        rec = self.recording
+        if rec is None:
+            return
+        lost = rec.close()
+        if rec.error is not None:
+            self.get_logger().error(f"recording incomplete ({rec.error}); {lost} messages not "
+                                    "written")
+        self.get_logger().info(f"closed {rec.path}: {rec.writer.messages_written} messages in "
+                               f"{rec.batches} batches (largest {rec.largest_batch})")
+
     def drop(self, kind: str, detail: str) -> None:
         self.drops[kind] += 1
         if self.drops[kind] == 1:
@@ -416,6 +492,7 @@ def _on_stop(node: Node) -> None:
                           drops=dict(node.drops), **node.realtime_event(total=True))
         node.get_logger().info(f"totals: {node.steps_total} steps, {node.sim.total_missed} "
                                f"missed actions, drops {dict(node.drops)}")
+        node.close_recording()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -7,10 +7,9 @@ time, is the receive time too: see ``on_message``), each channel with its publis
 and type hash, and the ``rosbag2`` metadata record at the end (docs/recording.md).
 
 The recorder must not slow the loop it records: it is its own process with its own executor, and
-its callbacks only append (topic, type, bytes, times) to a queue; a writer thread takes the queue
-in batches every ``WRITE_PERIOD_S`` and does the MCAP work (records, chunk compression, the graph
-query for a new topic's QoS) off the executor thread, so a chunk being compressed never delays a
-callback.
+its callbacks only append (topic, type, bytes, times) to a queue; a writer thread
+(:class:`sdhn_sim.recording.queued.QueuedRecording`, which the simulator's in-process recording
+shares) takes the queue in batches and does the MCAP work off the executor thread.
 
 Which topics, with which QoS:
 - The contract's topics are subscribed from the start, with their contract profile, so nothing
@@ -59,7 +58,6 @@ dropped by cause. It does not record ``/diagnostics`` itself (not under ``team_n
 
 from __future__ import annotations
 
-import collections
 import functools
 import queue
 import threading
@@ -81,14 +79,13 @@ from sdhn_base.ros.diagnostics import DiagnosticsPublisher
 from sdhn_base.ros.params import boolean, declare, string
 from sdhn_base.ros.qos import LATCHED, LATCHED_RECORDER, SENSOR, STEP
 from sdhn_base.ros.runner import ConfigError, run_node
+from sdhn_sim.recording.queued import QueuedRecording, graph_offers
 from sdhn_sim.recording.reader import fresh_path
-from sdhn_sim.recording.rosbag2 import fill_history, type_hash_text
+from sdhn_sim.recording.rosbag2 import type_hash_text
 from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg_schema
-from sdhn_sim.recording.writer import McapRosWriter
 from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5
-WRITE_PERIOD_S = 0.05  # the writer thread takes the queued messages this often, as one batch
 VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
 STATUS_PERIOD_S = 5.0
 CONTRACT_TOPICS = {  # relative to team_ns: (type, the recorder's profile, the publisher's)
@@ -199,8 +196,10 @@ class RecorderNode(Node):
                               "directory to create")
         where = fresh_path(requested)
         self.path = where / f"{where.name}_0.mcap" if bag_dir else where
-        self.writer = McapRosWriter(self.path, bag_dir=bag_dir)
-        self.lock = threading.Lock()  # the viz worker writes into the same MCAP writer
+        self.recording = QueuedRecording(self.path, bag_dir, self.describe,
+                                         self.get_logger().error)
+        self.writer = self.recording.writer
+        self.lock = self.recording.lock  # the viz worker writes into the same MCAP writer
         self.viz = (VizWorker(VizMcapChannels(self.writer.mcap), self.lock) if viz else None)
         self._viz_kinds = {topics.absolute(self.ns, kind): kind for kind in KINDS.values()}
         self.counts: dict[str, int] = {}
@@ -212,15 +211,6 @@ class RecorderNode(Node):
         self._t0 = time.monotonic()
         self._bytes = 0
         self._last_status = ""
-        self._pending: collections.deque[tuple[str, str, bytes, int, int]] = collections.deque()
-        self._stop_writing = threading.Event()
-        self.batches = 0
-        self.largest_batch = 0
-        self.write_error: str | None = None
-        self.not_written = 0
-        self._writer_thread = threading.Thread(target=self.write_loop, name="mcap-writer",
-                                               daemon=True)
-        self._writer_thread.start()
         for rel, (type_name, profile, offered) in CONTRACT_TOPICS.items():
             self.record(topics.absolute(self.ns, rel), type_name, profile, offered)
         self.discover()
@@ -277,13 +267,9 @@ class RecorderNode(Node):
         now, as rosbag2 does; else what discovery saw, else the contract's publisher profile.
         Called on the writer thread (rclpy's graph queries take the node's lock)."""
         contract = self._publisher_qos.get(topic)
-        try:
-            publishers = self.get_publishers_info_by_topic(topic)
-        except Exception:  # the node is being destroyed at shutdown: fall back below
-            publishers = []
-        if publishers:
-            return (fill_history([p.qos_profile for p in publishers], contract),
-                    type_hash_text(publishers[0].topic_type_hash))
+        found = graph_offers(self, topic, contract)
+        if found is not None:
+            return found
         if topic in self._discovered:
             return self._discovered[topic]
         return ([contract] if contract is not None else []), ''
@@ -291,45 +277,14 @@ class RecorderNode(Node):
     def on_message(self, topic: str, type_name: str, data: bytes) -> None:
         # time.time_ns() is the ROS system clock without rclpy's ~17 us per call (no sim time here)
         now = time.time_ns()
-        if self.write_error is not None:
-            self.not_written += 1
-            return
         # Publish time = receive time: the send time is in the message info, which the events
         # executor of these wheels cannot pass (a two-argument callback raises SystemError
         # there), and the default executor would cost several times the CPU per message.
-        self._pending.append((topic, type_name, data, now, now))  # the writer thread writes it
+        self.recording.put(topic, type_name, data, now, now)  # the writer thread writes it
         if self.viz is not None and (kind := self._viz_kinds.get(topic)) is not None:
             self.viz.offer(kind, type_name, data, now)
         self.counts[topic] += 1
         self._bytes += len(data)
-
-    def write_loop(self) -> None:
-        """The writer thread: every WRITE_PERIOD_S, write what was queued, in arrival order. A
-        write that fails (disk full, file gone) stops the recording: logged, and every message
-        after it counted as not written, instead of a queue growing without end."""
-        try:
-            while not self._stop_writing.wait(WRITE_PERIOD_S):
-                self.write_pending()
-            self.write_pending()
-        except Exception as e:
-            self.write_error = f"{type(e).__name__}: {e}"
-            self.get_logger().error(f"recording stopped, writing {self.path} failed: "
-                                    f"{self.write_error}; later messages are counted, not "
-                                    "written")
-
-    def write_pending(self) -> None:
-        n = len(self._pending)  # only this thread pops; callbacks only append
-        if not n:
-            return
-        batch = [self._pending.popleft() for _ in range(n)]
-        for topic in {m[0] for m in batch}:  # graph queries outside the writer's lock
-            if not self.writer.has_channel(topic):
-                self.writer.add_topic(topic, *self.describe(topic))
-        with self.lock:
-            for topic, type_name, data, now, sent in batch:
-                self.writer.write_serialized(topic, type_name, data, now, sent)
-        self.batches += 1
-        self.largest_batch = max(self.largest_batch, n)
 
     def log_status(self) -> None:
         elapsed = max(time.monotonic() - self._t0, 1e-9)
@@ -348,33 +303,30 @@ class RecorderNode(Node):
             drops["viz/skipped_worker_behind"] = self.viz.skipped
         values: dict[str, float | int | str] = {
             "messages_written": self.writer.messages_written,
-            "write_queue_depth": len(self._pending), "not_written": self.not_written,
+            "write_queue_depth": self.recording.queue_depth,
+            "not_written": self.recording.not_written,
             "topics": sum(1 for c in self.counts.values() if c), "file": str(self.path),
         }
         values |= drop_values(drops, self._drops_window.new(drops))
-        note = f"writing stopped: {self.write_error}" if self.write_error else ""
+        error = self.recording.error
+        note = f"writing stopped: {error}" if error else ""
         return make_report(self.get_fully_qualified_name(), self.ns, values,
                            ("write_queue_depth", "not_written", "dropped_in_window"), note,
-                           floor=ERROR if self.write_error else OK)
+                           floor=ERROR if error else OK)
 
     def stop(self) -> None:
-        self._stop_writing.set()
-        self._writer_thread.join()
+        self.recording.stop_writing()
         if self.viz is not None:
             self.viz.stop()
-        with self.lock:
-            try:
-                self.writer.close()
-            except OSError as e:
-                self.write_error = self.write_error or f"{type(e).__name__}: {e}"
-        if self.write_error is not None:
-            self.get_logger().error(f"recording incomplete ({self.write_error}); "
-                                    f"{len(self._pending) + self.not_written} messages not "
-                                    "written")
+        lost = self.recording.close()
+        if self.recording.error is not None:
+            self.get_logger().error(f"recording incomplete ({self.recording.error}); {lost} "
+                                    "messages not written")
         per_topic = ", ".join(f"{t}={c}" for t, c in sorted(self.counts.items()) if c)
         self.get_logger().info(f"closed {self.path}: {self.writer.messages_written} messages "
-                               f"({self._bytes / 1e6:.2f} MB) in {self.batches} batches "
-                               f"(largest {self.largest_batch}); {per_topic}")
+                               f"({self._bytes / 1e6:.2f} MB) in {self.recording.batches} "
+                               f"batches (largest {self.recording.largest_batch}); "
+                               f"{per_topic}")
         if self.viz is not None:
             self.get_logger().info(self.viz.summary())
 

@@ -464,7 +464,8 @@ class SimNode(Node):
             self.get_logger().error(f"recording incomplete ({rec.error}); {lost} messages not "
                                     "written")
         self.get_logger().info(f"closed {rec.path}: {rec.writer.messages_written} messages in "
-                               f"{rec.batches} batches (largest {rec.largest_batch})")
+                               f"{rec.batches} batches (largest {rec.largest_batch}); writer "
+                               f"thread {rec.writer_cpu_s * 1e3:.1f} ms of CPU")
 
     def drop(self, kind: str, detail: str) -> None:
         self.drops[kind] += 1

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -60,6 +61,7 @@ class QueuedRecording:
         self.largest_batch = 0
         self.error: str | None = None
         self.not_written = 0
+        self.writer_cpu_s = 0.0  # CPU time of the writer thread, once it has ended
         self._thread = threading.Thread(target=self._write_loop, name="mcap-writer", daemon=True)
         self._thread.start()
 
@@ -80,6 +82,7 @@ class QueuedRecording:
             while not self._stop.wait(WRITE_PERIOD_S):
                 self._write_pending()
             self._write_pending()
+            self.writer_cpu_s = time.thread_time()  # this thread's own CPU (a benchmark figure)
         except Exception as e:
             self.error = f"{type(e).__name__}: {e}"
             self._on_error(f"recording stopped, writing {self.path} failed: {self.error}; later "

@@ -25,6 +25,7 @@ setup(
     entry_points={
         "console_scripts": [
             "actor = sdhn_policy.actor_node:main",
+            "export_onnx = sdhn_policy.onnx_export_cli:main",
         ],
     },
 )

@@ -8,8 +8,8 @@ import json
 from pathlib import Path
 
 import pytest
-from script_modules import load_script
 
+from sdhn_experiments import condition_eval_cli, condition_figures
 from sdhn_experiments.condition_eval import Mode, card_mode, evaluate_under, summarise_under
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.deploy_eval import instance_env, run_actor
@@ -61,14 +61,14 @@ def test_dead_reckoning_holds_up_under_two_steps_of_latency() -> None:
 
 def test_the_scripts_sweep_a_condition_and_draw_the_figure(tmp_path: Path) -> None:
     out = tmp_path / "cond.json"
-    ev = load_script("eval_conditions")
+    ev = condition_eval_cli
     assert ev.main(["models/maif-tiny-sdhn", "--instances", "10", "--set", "heldout",
                     "--conditions", "failures", "--severities", "1", "--out", str(out)]) == 0
     rows = json.loads(out.read_text())
     assert [(r["condition"], r["severity"]) for r in rows] == [("ideal", "-"), ("failures", "1")]
     assert len(rows[1]["records"]) == 10
     fig, md = tmp_path / "fig.png", tmp_path / "table.md"
-    assert load_script("plot_conditions").main(
+    assert condition_figures.main(
         [str(out), "--figure", str(fig), "--markdown", str(md)]) == 0
     assert fig.stat().st_size > 1000 and md.read_text().count("| maif-tiny-sdhn |") == 2
     assert ev.main(["models/maif-tiny-sdhn", "--block", "{latency: -1}"]) == 2

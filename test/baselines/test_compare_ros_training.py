@@ -1,23 +1,19 @@
-"""scripts/compare_ros_training.py without training: its argument checks (one line naming the
-flag, exit 2, nothing written) and its table (success and makespan first, NC when nothing
-completed, the return under the reward named)."""
+"""sdhn_experiments.bench.ros_vs_inprocess (scripts/compare_ros_training.py) without training:
+its argument checks (one line naming the flag, exit 2, nothing written) and its table (success
+and makespan first, NC when nothing completed, the return under the reward named)."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
 from pathlib import Path
-from types import ModuleType
 
 import pytest
-from script_modules import load_script
+
+from sdhn_experiments.bench import ros_vs_inprocess
 
 REPO = Path(__file__).resolve().parents[2]
 SCRIPT = REPO / "scripts" / "compare_ros_training.py"
-
-
-def script() -> ModuleType:
-    return load_script("compare_ros_training")
 
 
 @pytest.mark.parametrize(("args", "flag"), [
@@ -45,12 +41,11 @@ def test_an_existing_out_dir_is_refused(tmp_path: Path) -> None:
 
 
 def test_table_puts_success_and_makespan_first_and_names_the_reward() -> None:
-    mod = script()
     evals = {"train": {"success_rate": 0.5, "makespan": 40.25, "return": -80.0},
              "heldout": {"success_rate": 0.0, "makespan": "NC", "return": -200.0}}
-    runs = [mod.RunResult("init", None, 0, eval=evals),
-            mod.RunResult("ros", 2, 65536, sim_steps=70001, eval=evals)]
-    lines = mod.table(runs).splitlines()
+    runs = [ros_vs_inprocess.RunResult("init", None, 0, eval=evals),
+            ros_vs_inprocess.RunResult("ros", 2, 65536, sim_steps=70001, eval=evals)]
+    lines = ros_vs_inprocess.table(runs).splitlines()
     header = [c.strip() for c in lines[0].strip("|").split("|")]
     assert header[:8] == ["mode", "seed", "steps learned", "sim steps", "success",
                           "held-out success", "makespan", "held-out makespan"]

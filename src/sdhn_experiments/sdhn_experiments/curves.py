@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Learning curves (PNG) from run CSVs written by the trainer (``<run>/metrics.csv``).
 
     python scripts/plot_curves.py runs/maif-10__sdhn__* runs/maif-10__mappo__* \

@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """When did each run start to learn? A markdown table of the training step at which a run's
 greedy evaluation first rose above zero and first reached a level, with its policy entropy at
 the start and its highest, from the runs' own metrics.csv (no re-evaluation).

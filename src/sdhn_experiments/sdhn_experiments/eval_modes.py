@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Compare deployment modes of one policy (greedy, sampled at temperatures, unstick) from
 ``evaluate_policy.py --out`` files: success with its interval, deadlocks, and the makespan over
 the planner's on only the instances every mode completed (a fair makespan comparison: a mode

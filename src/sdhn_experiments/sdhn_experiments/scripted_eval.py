@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Scripted MAIF baselines on the training and the held-out instance sets.
 
     .venv/bin/python scripts/eval_scripted.py maif-tiny [--instances 100] [--seed 0]

@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Write ``actor.onnx``, its I/O contract ``actor.onnx.json`` and, for a model folder with a
 ``card.json``, ``deploy.json`` (observation layout, deployment mode, stall rule:
 sdhn_policy.deploy_contract) next to an actor's weights.
@@ -52,7 +51,7 @@ def export(weights: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    ap = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     ap.add_argument("paths", nargs="+", type=Path, help="model folders or actor .safetensors files")
     args = ap.parse_args(argv)
     for path in args.paths:

@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """P_H of SDHN runs side by side, at one equal step: the shape the skewness loss gives.
 
     .venv/bin/python scripts/compare_ph.py RUN_A RUN_B [--step 303104] --out docs/results/x.png
@@ -14,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(runs), figsize=(4.6 * len(runs), 3.9), squeeze=False)
-    im = None
+    im: Any = None
     for ax, run in zip(axes[0], runs, strict=True):
         ph = snapshot(run, step)
         im = ax.imshow(ph, vmin=0.0, vmax=1.0, cmap="viridis", aspect="auto")

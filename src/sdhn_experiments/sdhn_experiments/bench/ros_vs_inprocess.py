@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Does training over ROS learn like training in process? (issue 15)
 
     ROS_DOMAIN_ID=61 .venv/bin/python scripts/compare_ros_training.py --steps 32768 --seeds 1 2
@@ -38,7 +37,9 @@ from typing import Any
 
 import yaml
 
-REPO = Path(__file__).resolve().parents[1]
+from sdhn_experiments.bench import CHECKOUT
+
+REPO = CHECKOUT
 ENV, ALGO, REWARD, FEATURES = "maif-tiny", "sdhn", "corrected", "maif-ego/1"
 DEFAULT_INIT = REPO / "models/maif-solo-mappo/actor.safetensors"
 MODES = ("inprocess", "ros")

@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """The degradation figure and table of ``scripts/eval_conditions.py`` results.
 
     .venv/bin/python scripts/plot_conditions.py /tmp/cond/*.json \\
@@ -17,8 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from eval_conditions import SEVERITY_NAMES, markdown
+from sdhn_experiments.condition_eval_cli import SEVERITY_NAMES, markdown
 
 
 def load_rows(paths: list[Path]) -> list[dict[str, Any]]:

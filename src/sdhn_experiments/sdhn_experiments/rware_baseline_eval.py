@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """RWARE baselines: deliveries and return per episode of random and scripted policies.
 
     .venv/bin/python scripts/eval_rware_baselines.py [rware-3 rware-6 rware-9] [--episodes 10]

@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Shipped MAIF policies under deployment conditions: success (survivors' success under robot
 failure), makespan and makespan over the ideal world, with 95 % intervals, at several severities
 of each condition (sdhn_sim.envs.conditions; logic in sdhn_experiments.condition_eval).
@@ -115,8 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     for c in args.conditions:
         if c == "ideal":
             continue
-        sev, make = SWEEPS[c]
-        for v in args.severities or sev:
+        default_severities, make = SWEEPS[c]
+        for v in args.severities or default_severities:
             plan.append((c, f"{v:g}", make(v)))
     plan += extra
     reckon = {"off": [False], "on": [True], "both": [False, True]}[args.dead_reckon]

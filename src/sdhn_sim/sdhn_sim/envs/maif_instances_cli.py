@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Write the shipped MAIF instance sets to src/sdhn_sim/sdhn_sim/data/<name>.npz.
 
 Deterministic: each set comes from its configuration's ``instance_seed``, so re-running this

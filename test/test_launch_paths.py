@@ -5,6 +5,7 @@ current directory. And the launcher says how the actors act, from the config it 
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -18,6 +19,7 @@ from sdhn_bringup.supervisor import (
     describe_actions,
     file_base,
     load_config,
+    node_parameters,
 )
 
 REPO = Path(__file__).resolve().parents[1]
@@ -71,7 +73,44 @@ def test_the_launcher_runs_a_shipped_graph_from_another_directory(tmp_path: Path
     (["break_stalls=false", "stall_rule="], "greedy"),
     (["break_stalls=false", "stall_rule=", "greedy=false", "temperature=0.5"],
      "sampled at temperature 0.5"),
+    (["dead_reckoning=true"], "greedy, with stall breaking (rule 2,10,2), with dead reckoning"),
 ])
 def test_the_demo_graph_is_described_as_it_runs(sets: list[str], says: str) -> None:
     cfg = load_config(REPO / "configs" / "launch" / "deploy-maif10.yaml", sets)
     assert describe_actions(cfg) == says
+
+
+def _model(tmp_path: Path, deploy: dict[str, object] | None) -> Path:
+    """A copy of the maif-tiny weights with a card whose deployment mode is ``deploy``."""
+    folder = tmp_path / "model"
+    folder.mkdir()
+    shutil.copy(TINY_WEIGHTS, folder / "actor.safetensors")
+    shutil.copy(TINY_WEIGHTS.with_suffix(".json"), folder / "actor.json")
+    if deploy is not None:
+        (folder / "card.json").write_text(json.dumps(
+            {"env": "maif-tiny", "heldout_large": {"deploy": deploy}}))
+    return folder
+
+
+@pytest.mark.parametrize(("deploy", "sets", "reckons"), [
+    ({"greedy": True, "dead_reckoning": True}, [], True),  # the card's mode: deployed with it
+    ({"greedy": True, "dead_reckoning": True}, ["dead_reckoning=false"], False),  # refused
+    ({"greedy": True}, [], False),  # the card's mode without it
+    (None, [], False),  # weights without a card
+    (None, ["dead_reckoning=true"], True),
+])
+def test_dead_reckoning_deploys_as_the_card_says_unless_the_config_chooses(
+        tmp_path: Path, deploy: dict[str, object] | None, sets: list[str], reckons: bool) -> None:
+    model = _model(tmp_path, deploy)
+    cfg = load_config(TINY, [f"weights={model}", f"run_dir={tmp_path / 'run'}", *sets])
+    assert cfg.dead_reckoning is reckons
+    actors = [v for k, v in node_parameters(cfg).items() if k.endswith("/actor")]
+    assert len(actors) == 4 and all(a["dead_reckoning"] is reckons for a in actors)
+    assert describe_actions(cfg).endswith("with dead reckoning") is reckons
+
+
+@pytest.mark.parametrize("sets", [["env=rware-tiny-2ag", "weights=models/rware-tiny-2ag-mappo"],
+                                  ["mode=train", "weights="]], ids=["rware", "train"])
+def test_dead_reckoning_outside_a_maif_deployment_is_refused(sets: list[str]) -> None:
+    with pytest.raises(LaunchConfigError, match="dead_reckoning: applies only to deploy mode"):
+        load_config(TINY, [*sets, "dead_reckoning=true", "greedy=true"])

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.dead_reckoning import DeadReckoner
 from sdhn_sim.envs import make_env
 from sdhn_sim.envs.conditions import (
     ConditionedEnv,
@@ -253,20 +254,29 @@ def test_a_reset_env_starts_a_fresh_episode_and_leaves_the_others_alone() -> Non
 # --- the wrapper and the simulator core agree --------------------------------------------------
 
 
-def play_in_process(cond: Conditions, seed: int, episodes: int) -> list[tuple]:
+def play_in_process(cond: Conditions, seed: int, episodes: int,
+                    dead_reckoning: bool = False) -> list[tuple]:
+    """Greedy maif-tiny episodes under ``cond``, optionally with dead reckoning as
+    condition_eval applies it (each robot's observation moved by its actions since)."""
     rt = ActorRuntime.from_file(TINY_ACTOR)
     env = ConditionedEnv(make_env("maif-tiny", num_envs=1, seed=seed, max_steps=60), cond)
     obs, _ = env.reset()
     h = rt.initial_state(4)
     rng = np.random.default_rng(0)
+    dr = DeadReckoner(4, 12) if dead_reckoning else None
     out: list[tuple] = []
     while len(out) < episodes:
-        a, _, h = rt.act(obs[0], h, greedy=True, rng=rng)
+        seen = dr.correct(obs[0], env.obs_age[0]) if dr is not None else obs[0]
+        a, _, h = rt.act(seen, h, greedy=True, rng=rng)
+        if dr is not None:
+            dr.record(a)
         res = env.step(a[None])
         out += [(o.completed, o.makespan, o.survivors_completed, o.survivors_makespan, o.failed)
                 for o in env.outcomes]
         if res.episodes:  # (after a survivors' outcome the env's episode goes on to its end)
             h = rt.initial_state(4)
+            if dr is not None:
+                dr.reset()
         obs = res.obs
     return out[:episodes]
 

@@ -32,14 +32,28 @@ def f32(a: np.ndarray) -> array.array:
 def test_observation(frame: str, size: int) -> None:
     rng = np.random.default_rng(size)
     m = RobotObservation(episode=2**32 - 1, step=12345, robot_id=19, num_robots=20,
-                         reward=-3.25, terminated=True, truncated=False)
+                         reward=-3.25, terminated=True, truncated=False, obs_age=size + 3)
     m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec = frame, -5, 999_999_999
     values = rng.standard_normal(size).astype(np.float32)
     m.obs = f32(values)
     o = read_observation(serialize_message(m))
     assert (o.episode, o.step, o.robot_id, o.num_robots) == (2**32 - 1, 12345, 19, 20)
     np.testing.assert_array_equal(o.obs, values)
-    assert (o.reward, o.terminated, o.truncated) == (-3.25, True, False)
+    assert (o.reward, o.terminated, o.truncated, o.obs_age) == (-3.25, True, False, size + 3)
+
+
+def test_observation_of_the_definition_before_obs_age_reads_it_as_missing() -> None:
+    """A publisher built before obs_age was appended sends bytes that end at ``truncated``:
+    every other field still reads, obs_age is None (the actor's dead reckoning drops it)."""
+    values = np.arange(57, dtype=np.float32)
+    m = RobotObservation(episode=3, step=9, robot_id=1, num_robots=4, reward=0.5,
+                         truncated=True, obs_age=2, obs=f32(values))
+    full = serialize_message(m)
+    old = full[:-4]  # obs_age is the last 4 bytes (aligned after the two bools)
+    o = read_observation(old)
+    assert (o.episode, o.step, o.robot_id, o.reward, o.truncated) == (3, 9, 1, 0.5, True)
+    np.testing.assert_array_equal(o.obs, values)
+    assert o.obs_age is None and read_observation(full).obs_age == 2
 
 
 @pytest.mark.parametrize("frame", ["", "m", "ma", "map", "map1"])
@@ -85,14 +99,16 @@ def test_observation_writer(frame: str, size: int) -> None:
     for step, (sec, ns) in enumerate([(1_796_000_000, 999_999_999), (0, 0), (2**31 - 1, 1)]):
         values = rng.standard_normal(size).astype(np.float32)
         m = RobotObservation(episode=2**32 - 1, step=step, robot_id=19, num_robots=20,
-                             reward=-3.25 * step, terminated=step == 1, truncated=step == 2)
+                             reward=-3.25 * step, terminated=step == 1, truncated=step == 2,
+                             obs_age=[0, 2**32 - 1, 3][step])
         m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec = frame, sec, ns
         m.obs = f32(values)
         data = w.write(sec * 10**9 + ns, 2**32 - 1, step, values, reward=-3.25 * step,
-                       terminated=step == 1, truncated=step == 2)
+                       terminated=step == 1, truncated=step == 2, obs_age=m.obs_age)
         assert len(data) == len(serialize_message(m))
         assert deserialize_message(data, RobotObservation) == m
-        assert read_observation(data).step == step  # and the readers read it
+        o = read_observation(data)  # and the readers read it
+        assert (o.step, o.obs_age) == (step, m.obs_age)
 
 
 @pytest.mark.parametrize("frame", ["", "m", "ma", "map", "map1"])

@@ -1,7 +1,10 @@
 """A deployment under conditions reproduces the in-process figures: the launcher's
 ``conditions:`` block reaches the simulator, which applies the same condition model between the
 world and the actor processes (one per robot), and each episode's outcome in episodes.csv is the
-in-process ``ConditionedEnv`` outcome for the same seed, step for step (greedy maif-tiny policy)."""
+in-process ``ConditionedEnv`` outcome for the same seed, step for step (greedy maif-tiny policy).
+With dead reckoning (``dead_reckoning: true``: the simulator sends each observation's age, the
+actors move it forward by their own unseen actions) a deployment under one step of latency gives
+the in-process dead-reckoning outcome, and without it the in-process plain one."""
 
 from __future__ import annotations
 
@@ -46,3 +49,24 @@ def test_a_deployment_under_conditions_reproduces_the_in_process_outcomes(
     events = [json.loads(line) for line in
               (tmp_path / "status" / "sim-events.jsonl").read_text().splitlines()]
     assert len([e for e in events if e["event"] == "episode"]) == EPISODES
+
+
+@pytest.mark.parametrize("reckon", [True, False], ids=["dead_reckoning", "plain"])
+def test_dead_reckoning_over_ros_gives_the_in_process_outcome_under_latency(
+        tmp_path: Path, reckon: bool) -> None:
+    sets = [f"run_dir={tmp_path}", "recorder=false", f"seed={SEED}", f"episodes={EPISODES}",
+            "max_steps=60", "conditions={latency: 1}", f"dead_reckoning={str(reckon).lower()}",
+            f"team_ns=/sdhn_reckon_{int(reckon)}_{os.getpid()}"]
+    args = [*LAUNCH, *(a for s in sets for a in ("--set", s))]
+    with node_processes(args) as (launcher,):
+        launcher.proc.wait(timeout=120)
+    assert launcher.proc.returncode == 0, launcher.output
+    params = (tmp_path / "params.yaml").read_text()
+    assert params.count(f"dead_reckoning: {str(reckon).lower()}") == 4, params  # every actor
+    rows = list(csv.DictReader((tmp_path / "episodes.csv").read_text().splitlines()))
+    assert all(int(r["missed_actions"]) == 0 for r in rows), rows  # every action on time
+    got = [outcome(r) for r in rows]
+    cond = Conditions(latency=1)
+    assert got == play_in_process(cond, seed=SEED, episodes=EPISODES, dead_reckoning=reckon)
+    # the two differ on this seed (greedy maif-tiny: dead reckoning completes every episode)
+    assert got != play_in_process(cond, seed=SEED, episodes=EPISODES, dead_reckoning=not reckon)

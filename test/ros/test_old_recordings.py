@@ -1,6 +1,7 @@
-"""Recordings made before TeamState and EpisodeSummary carried ``instance_id`` still read,
-summarise, render, convert (--add-viz) and republish; the missing id reads as -1 ("unknown") and
-nothing guesses the world in its place. The fixture was made with the code of that time
+"""Recordings made before TeamState and EpisodeSummary carried ``instance_id`` (and before
+RobotObservation carried ``obs_age``) still read, summarise, render, convert (--add-viz) and
+republish; the missing id reads as -1 ("unknown") and nothing guesses the world in its place; the
+missing age reads as 0 (no latency existed then). The fixture was made with the code of that time
 (test/fixtures/README.md)."""
 
 from __future__ import annotations
@@ -29,7 +30,11 @@ def test_old_team_messages_decode_with_unknown_instance() -> None:
     rec = read_recording(OLD)
     assert rec.truncated is None
     old = {m.type_name for m in rec.messages if m.old_schema}
-    assert old == {"sdhn_msgs/msg/TeamState", "sdhn_msgs/msg/EpisodeSummary"}, old
+    assert old == {"sdhn_msgs/msg/TeamState", "sdhn_msgs/msg/EpisodeSummary",
+                   "sdhn_msgs/msg/RobotObservation"}, old
+    observations = list(rec.decoded("/obs", "sdhn_msgs/msg/RobotObservation"))
+    assert observations and {int(o.obs_age) for _, o in observations} == {0}
+    assert all(len(o.obs) == 57 for _, o in observations)
     states = list(rec.decoded("/state"))
     assert len(states) == 26
     assert {int(s.instance_id) for _, s in states} == {-1}

@@ -24,12 +24,16 @@ def test_a_tick_applies_each_robots_newest_action_once_and_counts_its_staleness(
     n = sim.num_robots
     for i in range(n):
         assert sim.submit(i, f.episode, 0, 1, version=1) is None
+    assert f.obs_age is not None and not f.obs_age.any()
     f, _ = sim.advance()  # step 0's answers applied at step 0: staleness 0
     assert sim.staleness.applied == {0: n} and f.missed == 0
+    assert f.obs_age is not None and not f.obs_age.any()  # every action so far is in the world
     # Tick 1 -> 2: robot 0 answers step 1, robot 1 answers nothing new, robots 2.. late.
     assert sim.submit(0, f.episode, 1, 2, version=1) is None
     f, _ = sim.advance()
     assert f.missed == n - 1 and sim.staleness.applied == {0: n + 1}
+    # the others' answers to step 1 are not in the world of step 2: one step behind
+    assert f.obs_age is not None and f.obs_age.tolist() == [0] + [1] * (n - 1)
     # Tick 2 -> 3: robot 2's answer to step 1 arrives now (staleness 1); robot 3 answers step 1
     # and step 2 before the tick: step 1's answer is superseded, never applied.
     assert sim.submit(2, f.episode, 1, 3, version=1) is None
@@ -37,6 +41,9 @@ def test_a_tick_applies_each_robots_newest_action_once_and_counts_its_staleness(
     assert sim.submit(3, f.episode, 2, 4, version=1) is None
     f, _ = sim.advance()
     assert sim.staleness.applied == {0: n + 2, 1: 1}
+    # step 3's world holds robot 0's answer to step 1, robot 1's to step 0, robot 2's to step 1
+    # (applied late), robot 3's to step 2
+    assert f.obs_age is not None and f.obs_age.tolist()[:4] == [1, 2, 1, 0]
     assert sim.staleness.superseded == 1 and sim.staleness.stale == 1
     assert sim.staleness.missed == (n - 1) + (n - 2)
     assert sim.ep_staleness.applied == sim.staleness.applied

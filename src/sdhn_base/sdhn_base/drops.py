@@ -38,6 +38,7 @@ class DropKind(StrEnum):
     OUT_OF_GRID = "out_of_grid"  # a position outside the map
     BAD_VALUE = "bad_value"  # P_H outside [0, 1], a skewness not finite
     NON_FINITE_OBS = "non_finite_obs"
+    BAD_OBS_AGE = "bad_obs_age"  # dead reckoning: obs_age missing, or older than the episode
     NON_FINITE_STATE = "non_finite_state"
     ACTION_OUT_OF_RANGE = "action_out_of_range"
     BAD_LOG_PROB = "bad_log_prob"  # log-prob not finite or > 0
@@ -83,6 +84,8 @@ DESCRIPTIONS: dict[DropKind, str] = {
     DropKind.OUT_OF_GRID: "position outside the map",
     DropKind.BAD_VALUE: "value out of range or not finite",
     DropKind.NON_FINITE_OBS: "NaN/Inf in an observation",
+    DropKind.BAD_OBS_AGE: "observation age missing or before the episode's start (dead "
+                          "reckoning)",
     DropKind.NON_FINITE_STATE: "NaN/Inf in a state",
     DropKind.ACTION_OUT_OF_RANGE: "action out of range",
     DropKind.BAD_LOG_PROB: "log_prob not finite or > 0",

@@ -29,6 +29,10 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
                           a few actions; sdhn_policy.stall_breaker)
     stall_rule: ""        (with break_stalls: CALM,PROGRESS,SAMPLE[,T], the rule the actors
                           run; "" = their default. scripts/tune_stall_rule.py chooses one)
+    dead_reckoning: null  (deploy, MAIF: a robot moves an observation that lags behind its own
+                          actions forward by them, sdhn_policy.dead_reckoning; null = as the
+                          card beside the weights says, its heldout_large.deploy, false without
+                          a card; true / false to choose)
     step_deadline: 1.0    max_steps: 0                         instance: -1
     clock: lockstep | realtime   rate_hz: 10.0   (realtime: the world steps rate_hz times a
                           second with each robot's newest action, never waiting; the actors
@@ -149,6 +153,8 @@ class LaunchConfig:
     temperature: float = 1.0  # deploy with greedy false: sampling temperature (train mode: 1)
     break_stalls: bool = False  # deploy with greedy true: stall breaking (actor break_stalls)
     stall_rule: str = ""  # with break_stalls: the actors' stall_rule ("" = their default)
+    # deploy, MAIF: actor dead_reckoning; None = as the weights' card.json says (resolve())
+    dead_reckoning: bool | None = None
     step_deadline: float = 1.0
     clock: str = "lockstep"  # lockstep | realtime (the simulator's clock, sdhn_sim.lockstep)
     rate_hz: float = 10.0  # realtime: world steps per second
@@ -280,6 +286,10 @@ def validate(cfg: LaunchConfig) -> None:
             StallRule.parse(cfg.stall_rule)
         except ValueError as e:
             raise LaunchConfigError(f"stall_rule: {e}") from None
+    if cfg.dead_reckoning and (cfg.mode != "deploy" or cfg.env in RWARE_TASKS):
+        raise LaunchConfigError(f"dead_reckoning: applies only to deploy mode on a MAIF env "
+                                f"(it reads MAIF observations); got mode {cfg.mode}, env "
+                                f"{cfg.env}")
     if cfg.clock not in CLOCKS:
         raise LaunchConfigError(f"clock: got {cfg.clock!r}; allowed: {', '.join(CLOCKS)}")
     if not (isinstance(cfg.rate_hz, int | float) and 0 < cfg.rate_hz <= 1000):
@@ -343,15 +353,33 @@ def validate(cfg: LaunchConfig) -> None:
 
 def resolve(cfg: LaunchConfig) -> LaunchConfig:
     """A validated config with the derived fields filled in (a new object): the team size, the
-    weights file found in a run directory, the default run directory."""
+    weights file found in a run directory, the default run directory, dead reckoning as the
+    weights' card says when the config leaves it unset."""
+    weights = resolve_weights(cfg.weights).resolve() if cfg.mode == "deploy" else None
     return dataclasses.replace(
         cfg,
         robots=team_size(cfg.env),
-        weights=str(resolve_weights(cfg.weights).resolve()) if cfg.mode == "deploy" else "",
+        weights=str(weights) if weights is not None else "",
+        dead_reckoning=card_dead_reckoning(weights, cfg.env) if cfg.dead_reckoning is None
+        else cfg.dead_reckoning,
         run_dir=cfg.run_dir or f"runs/{cfg.mode}-{cfg.env}-{time.strftime('%Y%m%d-%H%M%S')}",
         discovery_port=(cfg.discovery_port or free_udp_port()) if cfg.discovery == "server"
         else cfg.discovery_port,
     )
+
+
+def card_dead_reckoning(weights: Path | None, env: str) -> bool:
+    """Whether the card.json beside deploy weights names dead reckoning in its deployment mode
+    (a MAIF env only; no card, or a card it cannot read: False, the actors' default)."""
+    from sdhn_policy.deploy_contract import card_dead_reckoning as says
+
+    card = weights.parent / "card.json" if weights is not None else None
+    if card is None or env in RWARE_TASKS or not card.is_file():
+        return False
+    try:
+        return says(json.loads(card.read_text()))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def describe_actions(cfg: LaunchConfig) -> str:
@@ -359,12 +387,13 @@ def describe_actions(cfg: LaunchConfig) -> str:
     and the demo say it, so neither can claim another mode than the one that runs)."""
     if cfg.mode != "deploy":
         return "sampled from the policy being trained"
+    reckon = ", with dead reckoning" if cfg.dead_reckoning else ""
     if not cfg.greedy:
-        return f"sampled at temperature {cfg.temperature:g}"
+        return f"sampled at temperature {cfg.temperature:g}{reckon}"
     if cfg.break_stalls:
         rule = cfg.stall_rule or "the actors' default"
-        return f"greedy, with stall breaking (rule {rule})"
-    return "greedy"
+        return f"greedy, with stall breaking (rule {rule}){reckon}"
+    return "greedy" + reckon
 
 
 def free_udp_port() -> int:
@@ -551,7 +580,8 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
             "temperature": float(cfg.temperature),
             "break_stalls": bool(cfg.break_stalls and cfg.mode == "deploy"),
             **({"stall_rule": cfg.stall_rule} if cfg.stall_rule else {}),
-            "env": cfg.env, "managed": cfg.managed, "realtime": cfg.clock == "realtime"}
+            "env": cfg.env, "managed": cfg.managed, "realtime": cfg.clock == "realtime",
+            "dead_reckoning": bool(cfg.dead_reckoning and cfg.mode == "deploy")}
     return nodes
 
 

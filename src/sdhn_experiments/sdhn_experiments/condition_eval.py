@@ -73,7 +73,7 @@ def card_mode(model_dir: str | Path) -> Mode:
     if d.get("break_stalls"):
         stall = StallRule.parse(d["stall_rule"]) if d.get("stall_rule") else StallRule()
     return Mode(greedy=bool(d["greedy"]), temperature=float(d.get("temperature", 1.0)),
-                stall=stall).check()
+                stall=stall, dead_reckon=bool(d.get("dead_reckoning", False))).check()
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,11 @@ in at the next observation, so one step always runs on one set of weights, and t
 the version that produced it. The GRU state goes back to zeros when a new episode starts
 (step 0 or a different episode counter). NumPy only: importing this never imports torch.
 
+Dead reckoning (``dead_reckon_grid``, MAIF): the core keeps the step each recorded action answered,
+so an observation ``obs_age`` steps behind this robot's own actions (``RobotObservation.obs_age``)
+is moved forward by exactly the actions it sent for steps ``step - obs_age .. step - 1``: steps it
+skipped or never answered (realtime clock, a restart mid-episode) sent nothing and move nothing.
+
     core = ActorCore(robot_id=2, num_robots=4, greedy=True, seed=0)
     core.offer_weights(fmt, version, payload, sha256)    # WeightsError (.kind) if rejected
     out = core.on_obs(episode, step, robot_id, num_robots, obs)
@@ -15,6 +20,7 @@ the version that produced it. The GRU state goes back to zeros when a new episod
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,6 +96,10 @@ class ActorCore:
         # MAIF under observation latency: move a stale observation forward by the actions sent
         # since (sdhn_policy.dead_reckoning); the grid's size, 0 = off
         self.reckoner = DeadReckoner(1, dead_reckon_grid) if dead_reckon_grid else None
+        # the step each action recorded in the reckoner answered, newest last (this episode)
+        self._sent_steps: deque[int] = deque(
+            maxlen=self.reckoner.horizon if self.reckoner is not None else 1)
+        self.reckoned = 0  # observations dead reckoning moved (a robot's own actions unseen)
         self.temperature = check_temperature(temperature)  # sampled play only
         if stall_rule is not None and not greedy:
             raise ValueError("stall breaking is a greedy mode (greedy must be true)")
@@ -123,8 +133,24 @@ class ActorCore:
             self.hidden = self.runtime.initial_state(1)
         if self.stalls is not None:
             self.stalls.reset()
+        self._reset_reckoner()
+
+    def _reset_reckoner(self) -> None:
         if self.reckoner is not None:
             self.reckoner.reset()
+            self._sent_steps.clear()
+
+    def _record(self, step: int, action: int) -> None:
+        if self.reckoner is not None:
+            self.reckoner.record([action])
+            self._sent_steps.append(step)
+
+    def unseen_actions(self, step: int, obs_age: int) -> int:
+        """How many of the actions this robot sent this episode an observation of ``step``,
+        ``obs_age`` steps behind its actions, does not reflect (those answering steps
+        ``step - obs_age`` and later; at most the reckoner's horizon)."""
+        first = step - obs_age
+        return sum(1 for s in self._sent_steps if first <= s < step)
 
     def _check(self, rt: ActorRuntime) -> None:
         spec = rt.spec
@@ -166,10 +192,12 @@ class ActorCore:
 
     def on_obs(self, episode: int, step: int, robot_id: int, num_robots: int,
                obs: npt.NDArray[np.float32], *, done: bool = False,
-               obs_age: int = 0) -> Decision | Drop | None:
+               obs_age: int | None = 0) -> Decision | Drop | None:
         """Answer one observation; None when no answer is due (``done``: the episode's final
-        observation, which the simulator does not wait on). ``obs_age``: how many steps old the
-        observation is (dead reckoning moves it forward by this robot's last sent actions)."""
+        observation, which the simulator does not wait on). ``obs_age``: how many steps the
+        observation lags behind this robot's actions (dead reckoning moves it forward by the
+        actions sent for steps ``step - obs_age`` on); None = the message lacks it, a drop
+        (``bad_obs_age``) only where dead reckoning needs it, as is an age before step 0."""
         if done:
             return None
         if robot_id != self.robot_id or num_robots != self.num_robots:
@@ -184,6 +212,10 @@ class ActorCore:
                         f"expects {self.runtime.spec.obs_size}")
         if not np.isfinite(obs).all():
             return Drop(DropKind.NON_FINITE_OBS, "observation contains NaN or Inf")
+        if self.reckoner is not None and (obs_age is None or not 0 <= obs_age <= step):
+            return Drop(DropKind.BAD_OBS_AGE, "observation without obs_age (a publisher of the "
+                        "older message definition)" if obs_age is None else
+                        f"obs_age {obs_age} at step {step}: before the episode's start")
         order = self._order(episode, step)
         if order is not None:
             return order
@@ -192,10 +224,12 @@ class ActorCore:
             self.episode, self.last_step = episode, None
             if self.stalls is not None:
                 self.stalls.reset()
-            if self.reckoner is not None:
-                self.reckoner.reset()
-        if self.reckoner is not None:
-            obs = self.reckoner.correct(obs[None], [obs_age])[0]
+            self._reset_reckoner()
+        if self.reckoner is not None and obs_age:
+            unseen = self.unseen_actions(step, obs_age)
+            if unseen:
+                self.reckoned += 1
+                obs = self.reckoner.correct(obs[None], [unseen])[0]
         greedy, temperature = self.greedy, self.temperature
         if self.stalls is not None and self.stalls.update(obs[None])[0]:
             greedy, temperature = False, self.stalls.rule.temperature
@@ -209,16 +243,14 @@ class ActorCore:
             return self._unanswered(step, None, Drop(DropKind.BAD_POLICY_OUTPUT, str(e)))
         self.hidden = h_next
         self.last_step = step
-        if self.reckoner is not None:
-            self.reckoner.record(action)
+        self._record(step, int(action[0]))
         return Decision(int(action[0]), float(logp[0]), self.runtime.version)
 
     def _unanswered(self, step: int, h_next: npt.NDArray[np.float32] | None, drop: Drop) -> Drop:
         """A step the policy could not answer: taken (the next step is in order, not 'future'),
         the GRU state carried on when it is finite, else back to zeros."""
         assert self.runtime is not None
-        if self.reckoner is not None:
-            self.reckoner.record([0])  # nothing sent: the simulator takes 'stay'
+        self._record(step, 0)  # nothing sent: the simulator takes 'stay'
         if h_next is not None and np.isfinite(h_next).all():
             self.hidden = h_next
         else:

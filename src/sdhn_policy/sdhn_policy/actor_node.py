@@ -91,6 +91,10 @@ PARAMETERS = {
     "realtime": (False, boolean("the simulator runs clock realtime: act on the newest "
                                 "observation (queue depth 1) and take a later step than the next "
                                 "one, the skipped steps counted")),
+    "dead_reckoning": (False, boolean("MAIF, needs env: move an observation that lags behind "
+                                      "this robot's actions (RobotObservation.obs_age) forward "
+                                      "by the actions it sent since (sdhn_policy.dead_reckoning);"
+                                      " changes nothing on a current one")),
 }
 FAIL_AFTER = 3  # wrong-length observations before any answer that end the actor
 WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait for "
@@ -128,6 +132,14 @@ class ActorNode(LifecycleNode):
         if p["env"] and self.target is None:
             raise ConfigError(f"env: unknown {p['env']!r}; allowed: '' or one of "
                               f"{', '.join(env_names())}")
+        self.reckon_grid = 0  # dead reckoning: the MAIF grid's size (0 = off)
+        if p["dead_reckoning"]:
+            from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+            if p["env"] not in MAIF_CONFIGS:
+                raise ConfigError(f"dead_reckoning: reads MAIF observations and needs env to "
+                                  f"name the grid; got env {p['env']!r}; allowed: one of "
+                                  f"{', '.join(MAIF_CONFIGS)}")
+            self.reckon_grid = MAIF_CONFIGS[p["env"]].size
         self.params: dict[str, Any] = p
         try:
             self.runtime_cls = runtime_class(p["backend"])
@@ -164,7 +176,8 @@ class ActorNode(LifecycleNode):
         stalls = self.stall_rule.text() if self.stall_rule else "off"
         self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
                                f"temperature={p['temperature']:g}, break_stalls={stalls}, "
-                               f"backend={p['backend']}, {how}")
+                               f"dead_reckoning={p['dead_reckoning']}, backend={p['backend']}, "
+                               f"{how}")
 
     # -- lifecycle transitions (lifecycle_msgs/srv/ChangeState, or autostart) -----------------
 
@@ -174,7 +187,8 @@ class ActorNode(LifecycleNode):
         runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
         return ActorCore(self.robot_id, p["num_robots"], p["greedy"], p["seed"], runtime,
                          runtime_cls=self.runtime_cls, temperature=p["temperature"],
-                         stall_rule=self.stall_rule, skip_ahead=p["realtime"])
+                         stall_rule=self.stall_rule, skip_ahead=p["realtime"],
+                         dead_reckon_grid=self.reckon_grid)
 
     def weights_error(self, e: WeightsError) -> str:
         return f"weights_file: {self.params['weights_file']}: {e.reason}; {WEIGHTS_ALLOWED}"
@@ -294,7 +308,7 @@ class ActorNode(LifecycleNode):
             self.drop(DropKind.UNDECODABLE, f"observation: {e}")
             return
         out = self.core.on_obs(msg.episode, msg.step, msg.robot_id, msg.num_robots, msg.obs,
-                               done=msg.terminated or msg.truncated)
+                               done=msg.terminated or msg.truncated, obs_age=msg.obs_age)
         if isinstance(out, Decision):
             self.answered = True
             # The action written straight as CDR and published as bytes (sdhn_base.ros.cdr): no
@@ -343,6 +357,8 @@ class ActorNode(LifecycleNode):
         }
         if self.params["realtime"]:
             values["skipped_steps"] = self.core.skipped if self.core is not None else 0
+        if self.reckon_grid:  # observations moved forward by this robot's unseen actions
+            values["dead_reckoned"] = self.core.reckoned if self.core is not None else 0
         values |= drop_values(self.drops, self._drops_window.new(self.drops))
         waiting = self.phase == "active" and self.obs_sub is None
         note = ("active, waiting for weights" if waiting else "" if self.phase == "active"

@@ -31,12 +31,13 @@ import numpy.typing as npt
 from sdhn_sim.envs.maif import ACTION_DELTAS, COORD_FEATURES, OBS_SIZE, RADIUS, WINDOW
 
 OBSTACLE = 1.0
+HORIZON = 8  # unseen actions taken at most (an older observation moves by the last HORIZON)
 
 
 class DeadReckoner:
     """Per-row history of sent actions and the correction of stale observations."""
 
-    def __init__(self, rows: int, grid_size: int, horizon: int = 8) -> None:
+    def __init__(self, rows: int, grid_size: int, horizon: int = HORIZON) -> None:
         if grid_size < 2:
             raise ValueError(f"dead reckoning grid_size: got {grid_size}; allowed: >= 2")
         if horizon < 1:

@@ -14,7 +14,10 @@ reproduces the project's deployed behaviour from the two JSON files and ``actor.
   them (the float32 log-softmax, inverse-CDF sampling in float64, one uniform per sampled step
   from a per-robot NumPy generator seeded ``[seed, robot_id]``);
 - ``stall_breaking``: :mod:`sdhn_policy.stall_breaker` as state, constants and an ordered list of
-  update steps.
+  update steps;
+- ``dead_reckoning`` (where the card's mode includes it, ``heldout_large.deploy.dead_reckoning``):
+  :mod:`sdhn_policy.dead_reckoning`, the rule that moves an observation lagging behind the robot's
+  own actions forward by them, in words precise enough to re-implement.
 
 Written by ``scripts/export_onnx.py`` (and ``scripts/ship_model.py``) from the weights and the
 model's ``card.json``; never by hand.
@@ -27,9 +30,10 @@ import os
 from pathlib import Path
 from typing import Any
 
+from sdhn_policy.dead_reckoning import HORIZON, OBSTACLE
 from sdhn_policy.stall_breaker import _EPS, _NEIGHBOURS, ROBOT_CELL, StallRule
 from sdhn_policy.weights import ActorSpec, atomic_write_bytes
-from sdhn_sim.envs.maif import COORD_FEATURES, OBS_SIZE, RADIUS, WINDOW
+from sdhn_sim.envs.maif import ACTION_DELTAS, COORD_FEATURES, OBS_SIZE, RADIUS, WINDOW
 
 DEPLOY_CONTRACT_VERSION = 1
 FILE_NAME = "deploy.json"
@@ -120,6 +124,37 @@ def action_selection() -> dict[str, Any]:
     }
 
 
+def card_dead_reckoning(card: dict[str, Any] | None) -> bool:
+    """Whether the card's deployment mode includes dead reckoning (``heldout_large.deploy``'s
+    ``dead_reckoning``; False where the card says nothing). The launcher deploys it from here."""
+    chosen = ((card or {}).get("heldout_large") or {}).get("deploy") or {}
+    return bool(chosen.get("dead_reckoning", False))
+
+
+def dead_reckoning() -> dict[str, Any]:
+    """:class:`sdhn_policy.dead_reckoning.DeadReckoner` for one robot, as data."""
+    return {
+        "input": "RobotObservation.obs_age: the robot's actions for steps step - obs_age .. "
+                 "step - 1 are not yet reflected in the observation (0 = current)",
+        "state": "the (step, action) of every action sent this episode, at most horizon kept; "
+                 "cleared at an episode's first observation",
+        "constants": {"horizon": HORIZON, "obstacle": OBSTACLE, "action_deltas (dx, dy)":
+                      {str(a): [int(v) for v in d] for a, d in enumerate(ACTION_DELTAS)}},
+        "update": [
+            "unseen = the sent actions whose step is >= step - obs_age, oldest first",
+            "cell = round(obs[0:2] * (grid_size - 1)); offset = (0, 0)",
+            "for each unseen action: target = offset + delta; it is taken unless the window cell "
+            "at target (relative to the observed centre) is an obstacle or cell + target is off "
+            "the grid",
+            "if offset != (0, 0): obs[0:2] = (cell + offset) / (grid_size - 1); the window "
+            "shifts by offset (cells coming into view: 0 on the grid, 1 beyond its edge; the "
+            "centre cell 0); goals and centroids stay as observed",
+            "after acting: append (step, action sent; 0 when no action was sent)",
+        ],
+        "order": "runs before stall breaking and the policy, on every observation",
+    }
+
+
 def card_mode(card: dict[str, Any] | None) -> dict[str, Any]:
     """The deployment mode the card chose (``heldout_large.deploy``), with the measured success
     of that mode where the card has it; greedy where the card chose none."""
@@ -127,11 +162,13 @@ def card_mode(card: dict[str, Any] | None) -> dict[str, Any]:
     chosen = large.get("deploy")
     if not chosen:
         return {"kind": "greedy", "greedy": True, "temperature": 1.0, "break_stalls": False,
+                "dead_reckoning": False,
                 "source": "default (the card measures greedy play and chooses no other mode)"}
     greedy = bool(chosen.get("greedy", True))
     breaks = bool(chosen.get("break_stalls", False)) and greedy
     temperature = float(chosen.get("temperature", 1.0))
     mode: dict[str, Any] = {"greedy": greedy, "temperature": temperature, "break_stalls": breaks,
+                            "dead_reckoning": card_dead_reckoning(card),
                             "source": "card.json heldout_large.deploy"}
     if breaks:
         rule = StallRule.parse(chosen["stall_rule"]) if chosen.get("stall_rule") else StallRule()
@@ -165,6 +202,8 @@ def deploy_contract(spec: ActorSpec, family: str, card: dict[str, Any] | None,
     }
     if mode["break_stalls"]:
         contract["stall_breaking"] = stall_breaking(StallRule.parse(mode["stall_rule"]))
+    if mode["dead_reckoning"]:
+        contract["dead_reckoning"] = dead_reckoning()
     return contract
 
 

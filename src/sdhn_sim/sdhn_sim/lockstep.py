@@ -32,6 +32,15 @@ k = what the in-process k-step observation latency gives). Why apply once rather
 last action: a MAIF or RWARE action is one discrete move, so repeating it would be a move the
 policy never chose.
 
+``Frame.obs_age`` is what each robot's observation lags behind its own actions, sent to the
+actors (``RobotObservation.obs_age``) for dead reckoning: its actions for steps
+``step - obs_age .. step - 1`` are not yet reflected in it. In lock-step that is the conditions'
+observation latency (every action of a step is applied, or known to be lost, before the next
+observation). Under the realtime clock an action still in flight, or pending for the next tick,
+is not in the world yet either: the age then counts from the robot's newest applied action (the
+observation of step t shows the world after the actions applied at ticks before t; with latency
+k, the world as it was k steps ago).
+
 Silent robots (``fail_after_missed`` > 0): a robot that has not answered that many steps in a row
 (lock-step: deadline misses; realtime: ticks without a new action) is declared failed, by the
 condition model's definition: from its first silent step on (the failure is dated back there,
@@ -48,6 +57,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -203,7 +213,9 @@ class Frame:
     terminated: bool
     truncated: bool
     missed: int  # robots that took 'stay' because their action missed the deadline
-    obs_age: npt.NDArray[np.int64] | None = None  # [N] steps old each robot's obs is (conditions)
+    # [N] steps each robot's observation lags behind its own actions (conditions' latency; under
+    # the realtime clock also its actions not yet applied); None on an episode's final frame
+    obs_age: npt.NDArray[np.int64] | None = None
 
     @property
     def done(self) -> bool:
@@ -252,6 +264,12 @@ class LockstepSim:
         # realtime: the step each robot's pending action answers (-1 = none yet this episode)
         self._answers = np.full(self.num_robots, -1, dtype=np.int64)
         self.staleness = RealtimeCounts()  # since start
+        # realtime: the step each robot's newest applied action answers (-1 = none this episode)
+        self._applied = np.full(self.num_robots, -1, dtype=np.int64)
+        # per recent step (newest last, latency + 1 kept): the first step whose action of each
+        # robot the world of that step does not reflect yet (lock-step: that step itself)
+        self._reflects: deque[npt.NDArray[np.int64]] = deque(
+            maxlen=cfg.conditions.latency + 1)
         self.ep_staleness = RealtimeCounts()  # this episode
         # silent robots: steps in a row without an answer; declared failed (kept across episodes
         # while silent); answered again while failed (revived at the next episode)
@@ -280,6 +298,9 @@ class LockstepSim:
         self._ep_collisions = 0
         self._clear()
         self._answers[:] = -1
+        self._applied[:] = -1
+        self._reflects.clear()
+        self._reflects.append(np.zeros(self.num_robots, dtype=np.int64))
         self.ep_staleness = RealtimeCounts()
         self.instance_id = self.env.instance_id
         self.conditions.start([0], obs[None])
@@ -291,8 +312,17 @@ class LockstepSim:
         self._cut_due()
         seen = self.conditions.observe(obs[None])[0]
         self.frame = Frame(self.episode, 0, seen, state, _positions(self.env), self.instance_id,
-                           0.0, False, False, 0, self.conditions.obs_age[0].copy())
+                           0.0, False, False, 0, self._lag())
         return self.frame
+
+    def _lag(self) -> npt.NDArray[np.int64]:
+        """[N] steps each robot's current observation lags behind its own actions (Frame.obs_age):
+        the observation shows the world of step ``step - latency age``, which reflects each
+        robot's actions up to the step ``_reflects`` kept for it."""
+        age = self.conditions.obs_age[0]
+        rows = len(self._reflects) - 1 - np.minimum(age, len(self._reflects) - 1)
+        reflects = np.stack(self._reflects)[rows, np.arange(self.num_robots)]
+        return (self.step - reflects).astype(np.int64)
 
     def _clear(self) -> None:
         self._actions[:] = STAY
@@ -417,10 +447,13 @@ class LockstepSim:
             stale = self.step - self._answers[self._got]
             for counts in (self.staleness, self.ep_staleness):
                 counts.add(stale, missed)
+            self._applied[self._got] = self._answers[self._got]
         failed = self.conditions.failed[0].copy()  # who had failed when these actions were taken
         applied = self.conditions.act(self._actions[None])[0]
         res = self.env.step(applied)
         self.step += 1
+        self._reflects.append(self._applied + 1 if self.cfg.realtime
+                              else np.full(self.num_robots, self.step, dtype=np.int64))
         self._clear()
         self._ep_return += res.reward
         if "robot_collisions" in res.info:
@@ -435,7 +468,7 @@ class LockstepSim:
         obs, age = res.obs, None
         if not done:
             obs = self.conditions.observe(res.obs[None])[0]
-            age = self.conditions.obs_age[0].copy()
+            age = self._lag()
         self.frame = Frame(self.episode, self.step, obs, res.state, _positions(self.env),
                            self.instance_id, res.reward, res.terminated or survivors,
                            res.truncated and not survivors, missed, age)

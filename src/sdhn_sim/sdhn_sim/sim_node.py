@@ -413,7 +413,9 @@ class SimNode(Node):
         """Publish (and record) robot i's observation of frame f, stamped ``now_ns``."""
         data = self._obs_writers[i].write(now_ns, f.episode, f.step, f.obs[i],
                                           reward=float(f.reward), terminated=bool(f.terminated),
-                                          truncated=bool(f.truncated))
+                                          truncated=bool(f.truncated),
+                                          obs_age=int(f.obs_age[i]) if f.obs_age is not None
+                                          else 0)
         self.obs_pubs[i].publish(data)
         if self.recording is not None:
             self.recording.put(self._obs_topics[i], OBS_TYPE, data, now_ns, now_ns)

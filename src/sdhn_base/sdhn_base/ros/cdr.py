@@ -72,6 +72,7 @@ class Observation(NamedTuple):
     reward: float
     terminated: bool
     truncated: bool
+    obs_age: int | None  # None: the bytes end before it (a publisher of the older definition)
 
 
 class Action(NamedTuple):
@@ -96,17 +97,22 @@ class State(NamedTuple):
 
 def read_observation(data: bytes) -> Observation:
     """``sdhn_msgs/RobotObservation``: header, episode, step, robot_id, num_robots, obs[],
-    reward, terminated, truncated."""
+    reward, terminated, truncated, obs_age (None when the bytes end before it: the definition
+    before obs_age was added; the reader of the age decides what that means)."""
     try:
         _check(data)
         pos = _skip_string(data, 12)  # after the stamp (sec, nanosec): frame_id
         pos = _align(pos, 4)
         episode, step, robot_id, num_robots = _IDS.unpack_from(data, pos)
         obs, pos = _floats(data, pos + 12)
-        reward, terminated, truncated = _OBS_TAIL.unpack_from(data, _align(pos, 4))
+        pos = _align(pos, 4)
+        reward, terminated, truncated = _OBS_TAIL.unpack_from(data, pos)
+        pos = _align(pos + _OBS_TAIL.size, 4)
+        age = _U32.unpack_from(data, pos)[0] if pos + 4 <= len(data) else None
     except struct.error as e:
         raise CdrError(str(e)) from None
-    return Observation(episode, step, robot_id, num_robots, obs, reward, terminated, truncated)
+    return Observation(episode, step, robot_id, num_robots, obs, reward, terminated, truncated,
+                       age)
 
 
 def read_action(data: bytes) -> Action:
@@ -189,17 +195,20 @@ class ObservationWriter:
         buf.extend(bytes(4 * obs_size))
         self._end = _pad(buf, 4)
         buf.extend(_OBS_END.pack(0.0, False, False))
+        self._age = _pad(buf, 4)
+        buf.extend(_U32.pack(0))
         self._buf = buf
         self.obs = np.frombuffer(buf, np.float32, obs_size, self._obs)  # writable view into buf
 
     def write(self, stamp_ns: int, episode: int, step: int, obs: npt.ArrayLike, *,
-              reward: float, terminated: bool, truncated: bool) -> bytes:
+              reward: float, terminated: bool, truncated: bool, obs_age: int = 0) -> bytes:
         """The message's CDR bytes (a copy: the buffer is reused on the next call)."""
         buf = self._buf
         _STAMP.pack_into(buf, 4, *divmod(stamp_ns, _NS))
         _STEP.pack_into(buf, self._ids, episode, step)
         self.obs[:] = obs
         _OBS_END.pack_into(buf, self._end, reward, terminated, truncated)
+        _U32.pack_into(buf, self._age, obs_age)
         return bytes(buf)
 
 

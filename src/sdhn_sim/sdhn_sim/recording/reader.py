@@ -118,6 +118,7 @@ class NotMcapError(ValueError):
 ADDED_FIELDS: dict[str, tuple[str, int, str]] = {
     "sdhn_msgs/msg/TeamState": ("instance_id", -1, "i"),
     "sdhn_msgs/msg/EpisodeSummary": ("instance_id", -1, "i"),
+    "sdhn_msgs/msg/RobotObservation": ("obs_age", 0, "I"),  # before it, no latency existed
 }
 
 

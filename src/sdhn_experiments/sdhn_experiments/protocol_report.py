@@ -44,20 +44,23 @@ from typing import Any
 
 import numpy as np
 
+from sdhn_experiments import budget_marks
 from sdhn_experiments import protocol_stats as ps
 from sdhn_experiments.figures import FigureError, Run, load_runs
+from sdhn_experiments.verdicts import (
+    MIN_VERDICT_SEEDS,
+    PAPER_BUDGET,
+    makespan_verdict,
+    too_few,
+    verdict,
+)
 from sdhn_train.run_files import read_run_text, run_file
 
-PAPER_BUDGET = "10-20M"  # team-steps per run in the paper's configs
-PAPER_MAKESPAN_RATIO = 0.77  # "a 23 % reduction in makespan compared to MAPPO"
 LABELS = {"sdhn": "SDHN", "mappo": "MAPPO", "qmix": "QMIX", "dicg": "DICG",
           "hgcn_mix": "HGCN-MIX", "sdhn_wo_lsk": "SDHN w/o L_Sk", "sdhn_wo_shr": "SDHN w/o SHR",
           "sdhn_generator_1_layer": "SDHN, 1-layer generator"}
 BASELINES = ("mappo", "qmix", "dicg", "hgcn_mix")
 ABLATIONS = ("sdhn_wo_lsk", "sdhn_wo_shr")
-MIN_VERDICT_SEEDS = 3
-"""Fewest runs per method a verdict rests on: with fewer, a bootstrap over seeds has (almost) no
-spread to draw, and one seed against one would 'reproduce' or 'contradict' on a coin toss."""
 
 
 @dataclass(frozen=True)
@@ -264,23 +267,6 @@ def sdhn_partner(method: str, methods: Any) -> str | None:
     return partner if partner in methods else None
 
 
-def too_few(*seeds: int) -> str | None:
-    """The verdict when a side has fewer than MIN_VERDICT_SEEDS runs, else None."""
-    n = min(seeds)
-    if n >= MIN_VERDICT_SEEDS:
-        return None
-    return f"inconclusive: {n} seed{'s' if n != 1 else ''} (a verdict needs {MIN_VERDICT_SEEDS})"
-
-
-def verdict(est: ps.Estimate, better_above: float) -> str:
-    """'reproduced' when the interval lies above ``better_above``, 'contradicted' below it."""
-    if est.low > better_above:
-        return "reproduced"
-    if est.high < better_above:
-        return "contradicted"
-    return "inconclusive at this budget"
-
-
 def _budget(d: MethodData) -> str:
     """A method's budget as the claims table states it: steps per run × seeds."""
     return f"{max(d.steps) / 1e6:g}M × {len(d.seeds)} seeds"
@@ -321,10 +307,7 @@ def claims_rows(tasks: dict[str, dict[str, MethodData]],
             mm = [r for r in ms["mappo"].ratio if r is not None]
             if len(sm) == len(sd.ratio) and len(mm) == len(ms["mappo"].ratio) and sm and mm:
                 ratio = ps.ratio_of_means(sm, mm, reps)
-                v = too_few(len(sm), len(mm)) or (
-                    "reproduced" if ratio.high <= PAPER_MAKESPAN_RATIO else
-                    "contradicted" if ratio.low > PAPER_MAKESPAN_RATIO else
-                    "inconclusive at this budget")
+                v = too_few(len(sm), len(mm)) or makespan_verdict(ratio)
                 rows.append({"claim": f"SDHN's makespan is 23 % below MAPPO's on {task}",
                              "measurement": f"SDHN / MAPPO makespan (each over the planner's, "
                                             f"large held-out set) = "
@@ -479,12 +462,15 @@ def in_progress_table(progress: list[dict[str, Any]]) -> list[str]:
 
 
 def report(logdir: Path, outdir: Path, planner_cache: Path | None,
-           compute_absolute: bool = True, reps: int = ps.REPS) -> list[Path]:
+           compute_absolute: bool = True, reps: int = ps.REPS, *,
+           models: Path = budget_marks.SHIPPED) -> list[Path]:
     runs = load_runs(logdir)
     tasks = collect(runs, planner_cache, compute_absolute)
-    if not tasks:
+    marks = budget_marks.collect(runs, planner_cache, compute_absolute, models)
+    if not tasks and not marks:
         raise FigureError(f"{logdir}: no finished run with a greedy evaluation (DONE.json and "
-                          "eval/success_rate or eval/deliveries in metrics.csv)")
+                          "eval/success_rate or eval/deliveries in metrics.csv) and no actor "
+                          "exported at a log.actor_marks mark")
     outdir.mkdir(parents=True, exist_ok=True)
     progress = in_progress(runs)
     summary: dict[str, Any] = {"logdir": logdir.name,
@@ -515,13 +501,21 @@ def report(logdir: Path, outdir: Path, planner_cache: Path | None,
     written = [outdir / "protocol.md", outdir / "protocol.json", outdir / "marl_eval.json",
                outdir / "claims.md"]
     claims = claims_rows(tasks, reps)
-    md += ["Claims: claims.md. Curves: sample_efficiency.png.", ""]
+    marl = marl_runs(tasks)
+    figs = [sample_efficiency_figure(tasks, outdir / "sample_efficiency.png", reps)]
+    if marks:
+        rows, summary["budgets"] = budget_marks.tables(marks, reps)
+        md += [*rows, "Success against the budget: budgets.png.", ""]
+        finals = {r.task: int(r.config["train"]["total_steps"]) for r in runs}
+        claims += budget_marks.claims_rows(marks, finals, reps)
+        marl += budget_marks.marl_absolute(marks)
+        figs.append(budget_marks.figure(marks, outdir / "budgets.png", reps))
+    md += ["Claims: claims.md." + (" Curves: sample_efficiency.png." if figs[0] else ""), ""]
     written[0].write_text("\n".join(md))
     written[1].write_text(json.dumps(summary, indent=1) + "\n")
-    written[2].write_text(json.dumps(ps.marl_eval_json(marl_runs(tasks)), indent=1) + "\n")
+    written[2].write_text(json.dumps(ps.marl_eval_json(marl), indent=1) + "\n")
     written[3].write_text(claims_markdown(claims, f"suite logs {logdir.name}"))
-    fig = sample_efficiency_figure(tasks, outdir / "sample_efficiency.png", reps)
-    return written + ([fig] if fig else [])
+    return written + [f for f in figs if f is not None]
 
 
 def marl_runs(tasks: dict[str, dict[str, MethodData]]) -> list[dict[str, Any]]:
@@ -586,6 +580,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--planner-cache", type=Path, default=None,
                    help="planner makespan cache (default: $XDG_CACHE_HOME/sdhn/planner)")
     p.add_argument("--reps", type=int, default=ps.REPS, help="bootstrap resamples")
+    p.add_argument("--models", type=Path, default=budget_marks.SHIPPED,
+                   help="shipped models whose cards name each task's deployed mode, for the "
+                        "actors exported at log.actor_marks (default: models)")
     args = p.parse_args(argv)
     if args.reps < 100:
         print("protocol_report: --reps must be an integer >= 100", file=sys.stderr)
@@ -597,7 +594,8 @@ def main(argv: list[str] | None = None) -> int:
         cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "sdhn" / \
             "planner"
     try:
-        for f in report(args.logdir, args.outdir, cache, not args.no_absolute, args.reps):
+        for f in report(args.logdir, args.outdir, cache, not args.no_absolute, args.reps,
+                        models=args.models):
             print(f"[protocol] wrote {f}")
     except (FigureError, OSError, ValueError) as e:
         print(f"protocol_report: {e}", file=sys.stderr)

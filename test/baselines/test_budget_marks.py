@@ -31,8 +31,8 @@ def _run(logdir: Path, method: str, seed: int, *, task: str = "maif-10", total: 
     (d / "run.json").write_text(json.dumps({"suite": "synthetic", "method": method,
                                             "task": task, "seed": seed}))
     (d / "metrics.csv").write_text("step,wall_time,tag,value\n"
-                                   f"1000,0,eval/success_rate,0.5\n"
-                                   f"1000,0,eval/heldout_success_rate,0.5\n")
+                                   "1000,0,eval/success_rate,0.5\n"
+                                   "1000,0,eval/heldout_success_rate,0.5\n")
     if done:
         (d / "DONE.json").write_text("{}")
     return d

@@ -3,14 +3,18 @@ at N robots, one actor process per robot or actor hosts, simple discovery or the
 discovery server. Run with the venv's python (``scripts/bench_ros.py --fleet`` runs the same):
 
     .venv/bin/python scripts/bench_fleet.py --robots 4 10 20 40 --steps 200 \\
-        --discovery simple server --hosts 0 2 [--record]
+        --discovery simple server --hosts 0 2 [--record [node | sim | both]]
 
 Per run: start-up (launch -> every child's ready file), discovery (launch -> the simulator's
 'started' event, i.e. every obs/action endpoint matched both ways), lock-step rounds/s over the
 simulator's own window, CPU (utime + stime from /proc) per round of the whole graph and per
 robot-round, CPU per second of each actor process in the loop, RSS per actor process and in all,
-missed actions; with ``--record`` the same graph again with the recorder, and the recorder's share
-of the graph's CPU. Weights are random (the cost of a step does not depend on the policy).
+missed actions; with ``--record`` the same graph again with the recorder node (``node``, the
+default) or with the simulator recording in its own process (``sim``: ``recorder.where=sim``) or
+both, and the recording's share of the graph's CPU: the recorder process's CPU, or the simulator's
+writer thread's (marked ``w``; what the simulator's hot path adds, queueing and the state message
+it serialises every step, shows only against the unrecorded row's CPU per round). Weights are
+random (the cost of a step does not depend on the policy).
 """
 
 from __future__ import annotations
@@ -47,7 +51,7 @@ class FleetRun:
     n: int
     discovery: str
     hosts: int
-    record: bool
+    record: str  # '' (none), 'node' (the recorder node) or 'sim' (in the simulator)
     ok: bool = False
     ready_s: float = float("nan")  # launch -> every child ready
     matched_s: float = float("nan")  # launch -> the simulator's 'started'
@@ -77,12 +81,13 @@ class FleetRun:
 
 
 def run_graph(n: int, steps: int, weights: Path, tmp: Path, *, discovery: str, hosts: int,
-              record: bool, timeout: float) -> FleetRun:
+              record: str, timeout: float) -> FleetRun:
     out = FleetRun(n, discovery, hosts, record)
-    run_dir = tmp / f"n{n}-{discovery}-h{hosts}-r{int(record)}-{time.monotonic_ns()}"
+    run_dir = tmp / f"n{n}-{discovery}-h{hosts}-r{record or 'none'}-{time.monotonic_ns()}"
     cmd = [sys.executable, "-m", "sdhn_bringup", str(ROOT / "configs/launch/deploy-tiny.yaml"),
            "--set", f"env={ENVS[n]}", "--set", f"weights={weights}", "--set", "episodes=1",
-           "--set", f"max_steps={steps}", "--set", f"recorder={str(record).lower()}",
+           "--set", f"max_steps={steps}", "--set", f"recorder={str(bool(record)).lower()}",
+           *(["--set", f"recorder.where={record}"] if record else []),
            "--set", f"discovery={discovery}", "--set", f"actor_hosts={hosts}",
            "--set", f"run_dir={run_dir}", "--set", f"start_timeout={timeout}",
            "--set", "step_deadline=5", "--set", "status_interval=5"]
@@ -137,6 +142,10 @@ def run_graph(n: int, steps: int, weights: Path, tmp: Path, *, discovery: str, h
                if f.stem != DISCOVERY] if (run_dir / "status").exists() else []
     out.ready_s = max(readies) - t0 if readies else float("nan")
     out.ok = proc.returncode == 0 and out.rounds > 0
+    if record == "sim":  # the simulator's closing line: its writer thread's CPU (whole run)
+        log = run_dir / "logs" / "sim.log"
+        found = WRITER_CPU.findall(log.read_text(errors="replace")) if log.exists() else []
+        out.recorder_cpu_s = float(found[-1]) / 1e3 if found else float("nan")
     if not out.ok:
         out.note = next((x.strip() for x in reversed(lines) if "failed" in x or "error" in x),
                         f"exit {proc.returncode}")[:160]
@@ -144,6 +153,7 @@ def run_graph(n: int, steps: int, weights: Path, tmp: Path, *, discovery: str, h
 
 
 DISCOVERY = "discovery"
+WRITER_CPU = re.compile(r"writer thread ([0-9.]+) ms of CPU")
 
 
 def header() -> str:
@@ -156,7 +166,9 @@ def header() -> str:
 def row(r: FleetRun) -> str:
     layout = f"{r.hosts} hosts" if r.hosts else "process"
     per_actor = (r.actors_cpu_s / r.wall_s / max(r.actor_procs, 1)) if r.rounds else float("nan")
-    rec = (f"{r.recorder_cpu_s / (r.cpu_s) :>8.1%}" if r.record and r.rounds else f"{'-':>8}")
+    mark = "w" if r.record == "sim" else ""
+    rec = (f"{f'{r.recorder_cpu_s / r.cpu_s:.1%}{mark}':>8}" if r.record and r.rounds
+           else f"{'-':>8}")
     line = (f"{r.n:>3} {r.discovery:>9} {layout:>9} {r.ready_s:>7.1f} {r.matched_s:>9.1f} "
             f"{r.rate:>8.1f} {r.cpu_ms_round:>12.2f} {r.cpu_us_robot_round:>18.0f} "
             f"{per_actor:>11.3f} {r.rss_actor_mb:>12.0f} {r.rss_total_mb:>10.0f} {rec} "
@@ -209,7 +221,10 @@ def main(argv: list[str] | None = None) -> int:
                     choices=["simple", "server"])
     ap.add_argument("--hosts", type=int, nargs="+", default=[0, 2],
                     help="actor_hosts values (0 = one process per robot)")
-    ap.add_argument("--record", action="store_true", help="also each graph with the recorder")
+    ap.add_argument("--record", nargs="?", const="node", default="",
+                    choices=["node", "sim", "both"],
+                    help="also each graph recorded: by the recorder node (node, the default), "
+                         "inside the simulator (sim), or both")
     ap.add_argument("--timeout", type=float, default=240.0, help="start_timeout per run (s)")
     ap.add_argument("--plot", nargs=2, type=Path, metavar=("TABLE", "FIGURE"),
                     help="only draw FIGURE (png) from a saved TABLE this script printed")
@@ -230,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
             for hosts in args.hosts:
                 if hosts > n:
                     continue
-                for record in ((False, True) if args.record else (False,)):
+                kinds = {"": [], "node": ["node"], "sim": ["sim"], "both": ["node", "sim"]}
+                for record in ["", *kinds[args.record]]:
                     r = run_graph(n, args.steps, weights, tmp, discovery=discovery,
                                   hosts=hosts, record=record, timeout=args.timeout)
                     print(row(r), flush=True)

@@ -1,6 +1,7 @@
 """Benchmark of the ROS deployment stack (prints figures; not a test). Run with the venv's python:
 
-    .venv/bin/python scripts/bench_ros.py [--robots 4 10 20 40 100] [--steps 300] [--record]
+    .venv/bin/python scripts/bench_ros.py [--robots 4 10 20 40 100] [--steps 300]
+        [--record [node | sim | both]]
     .venv/bin/python scripts/bench_ros.py --fleet --robots 4 10 20 40 --hosts 0 2  # the fleet
 
 1. Lock-step team-steps/s in deploy mode (``sdhn_sim sim`` + N ``sdhn_policy actor`` processes,
@@ -8,7 +9,13 @@
    the same run: a bare lock-step master publishing the same RobotObservation messages to N bare
    echo processes, one per robot, which answer with a RobotAction at once (no env, no policy).
 2. Actor process RSS and time-to-ready (Popen -> "ready" log line) with a weights file.
-3. Recording overhead: steps/s with vs without the recorder (``--record``; needs a real recorder).
+3. Recording overhead (``--record``): steps/s and CPU with the recorder node beside the loop
+   (``node``, the default), with the simulator recording in its own process (``sim``: the
+   simulator's ``recording`` parameter), or both, each against the unrecorded deploy of the same
+   repeat. The recorder node's share is its CPU / (loop + its CPU); the in-simulator recording's is
+   (loop CPU recorded - loop CPU unrecorded) / loop CPU recorded (everything it adds: queueing,
+   the state message it serialises every step, the writer thread), beside which the sim's writer
+   thread's own CPU is printed.
 
 Beside every wall rate it prints the CPU time per team step (round) of each role over the measured
 window (utime + stime from ``/proc/<pid>/stat`` before and after, divided by the rounds made): the
@@ -69,6 +76,7 @@ class Window:
     loop_cpu_s: float  # the simulator, or the bare master
     peers_cpu_s: float  # the N actors, or the N echo processes, summed
     recorder_cpu_s: float | None = None
+    writer_cpu_s: float | None = None  # in-sim recording: the sim's writer thread (whole run)
     load: float = 0.0  # 1-minute load average at the end of the window
 
     @property
@@ -264,23 +272,28 @@ def ceiling(n: int, steps: int) -> Window:
 # --- 1b. the real stack ---------------------------------------------------------------------
 
 
-def deploy_rate(n: int, steps: int, weights: Path, record: bool, tmp: Path) -> Window:
+WRITER_CPU = re.compile(r"writer thread ([0-9.]+) ms of CPU")
+
+
+def deploy_rate(n: int, steps: int, weights: Path, record: str, tmp: Path) -> Window:
+    """One deploy run; ``record``: '' (none), 'node' (the recorder node) or 'sim' (in-sim)."""
     env = ENVS[n]
     procs = []
-    if record:
+    in_sim = ["-p", f"recording:={tmp / f'rec-sim-{n}-{time.monotonic_ns()}.mcap'}"]
+    if record == "node":
         procs.append(spawn([*ROS2, "sdhn_sim", "recorder", "--ros-args", "-r", "__ns:=/sdhn",
                             "-p", f"output:={tmp / f'rec-{n}.mcap'}"]))
     actors = [spawn([*ROS2, "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:=/sdhn/robot_{i}",
                      "-p", f"robot_id:={i}", "-p", f"num_robots:={n}", "-p",
                      f"weights_file:={weights}", "-p", "greedy:=true"]) for i in range(n)]
-    events = tmp / f"sim-events-{n}-{int(record)}.jsonl"
+    events = tmp / f"sim-events-{n}-{record}.jsonl"
     events.unlink(missing_ok=True)
     # The sim's output goes to a file: nobody reads a pipe while it runs, and a full pipe blocks.
-    log = (tmp / f"sim-{n}-{int(record)}.log").open("wb")
+    log = (tmp / f"sim-{n}-{record}.log").open("wb")
     sim = subprocess.Popen([*ROS2, "sdhn_sim", "sim", "--ros-args", "-r", "__ns:=/sdhn", "-p",
                             f"env:={env}", "-p", "episodes:=1", "-p", f"max_steps:={steps}",
-                            "-p", f"extra_subscribers:={int(record)}", "-p",
-                            f"events_file:={events}"],
+                            "-p", f"extra_subscribers:={int(record == 'node')}", "-p",
+                            f"events_file:={events}", *(in_sim if record == "sim" else [])],
                            stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
     roles = [sim, *actors, *procs]  # procs: the recorder
     try:
@@ -305,11 +318,15 @@ def deploy_rate(n: int, steps: int, weights: Path, record: bool, tmp: Path) -> W
             lines = Path(log.name).read_text(errors="replace").splitlines()
             raise RuntimeError("sim did not finish:\n" + "\n".join(lines[-20:]))
         cpu = [b - a for a, b in zip(before, after, strict=True)]
-        return Window(int(done["steps"]), float(done["elapsed_s"]), cpu[0], sum(cpu[1:1 + n]),
-                      cpu[-1] if record else None, load=os.getloadavg()[0])
+        window = Window(int(done["steps"]), float(done["elapsed_s"]), cpu[0], sum(cpu[1:1 + n]),
+                        cpu[-1] if record == "node" else None, load=os.getloadavg()[0])
     finally:
         log.close()
         stop(roles)
+    if record == "sim":  # the sim has closed its file: its last lines say what the writer cost
+        found = WRITER_CPU.findall(Path(log.name).read_text(errors="replace"))
+        window.writer_cpu_s = float(found[-1]) / 1e3 if found else None
+    return window
 
 
 # --- 2. actor process footprint --------------------------------------------------------------
@@ -346,7 +363,10 @@ def main() -> int:
     ap.add_argument("--robots", type=int, nargs="*", default=[4, 10, 20], choices=sorted(ENVS),
                     help="team sizes to measure (none: only the actor footprint)")
     ap.add_argument("--steps", type=int, default=300, help="team steps per measurement")
-    ap.add_argument("--record", action="store_true", help="also measure recording overhead")
+    ap.add_argument("--record", nargs="?", const="node", default="",
+                    choices=["node", "sim", "both"],
+                    help="also measure recording overhead: the recorder node (node, the default), "
+                         "the simulator recording in its own process (sim), or both")
     ap.add_argument("--repeats", type=int, default=2,
                     help="interleaved repeats per figure; the best is shown (other load on the "
                          "machine only ever slows a run down)")
@@ -380,17 +400,21 @@ def main() -> int:
           "CPU-bound = bare CPU / deploy CPU (and loop / (loop + recorder))")
     head = (f"{'N':>3} {'env':>10} {'bare/s':>7} {'deploy/s':>8} {'ratio':>6} | "
             f"{'bare CPU':>14} {'deploy CPU':>15} {'CPU-bound':>9}")
-    if args.record:
-        head += (f" | {'recorded/s':>10} {'overhead':>8} {'recorder CPU':>12} "
-                 f"{'CPU-bound':>9}")
+    kinds = {"node": ["node"], "sim": ["sim"], "both": ["node", "sim"], "": []}[args.record]
+    if "node" in kinds:
+        head += (f" | {'node rec/s':>10} {'overhead':>8} {'recorder CPU':>12} "
+                 f"{'CPU share':>9}")
+    if "sim" in kinds:
+        head += (f" | {'in-sim/s':>8} {'overhead':>8} {'loop CPU':>8} {'added':>6} "
+                 f"{'writer':>6} {'CPU share':>9}")
     print(head + " | load")
     for n in args.robots:
-        runs: dict[str, list[Window]] = {"ceiling": [], "deploy": [], "recorded": []}
+        runs: dict[str, list[Window]] = {"ceiling": [], "deploy": [], "node": [], "sim": []}
         for _ in range(args.repeats):
             runs["ceiling"].append(ceiling(n, args.steps))
-            runs["deploy"].append(deploy_rate(n, args.steps, weights, False, tmp))
-            if args.record:
-                runs["recorded"].append(deploy_rate(n, args.steps, weights, True, tmp))
+            runs["deploy"].append(deploy_rate(n, args.steps, weights, "", tmp))
+            for kind in kinds:
+                runs[kind].append(deploy_rate(n, args.steps, weights, kind, tmp))
 
         def med(kind: str, part: str, runs: dict[str, list[Window]] = runs) -> float:
             return float(np.median([w.ms(getattr(w, f"{part}_cpu_s")) for w in runs[kind]]))
@@ -403,12 +427,19 @@ def main() -> int:
         line = (f"{n:>3} {ENVS[n]:>10} {ceil:>7.0f} {real:>8.0f} {real / ceil:>6.0%} | "
                 f"{bare_cpu:>5.2f} ({bare_loop:.2f}+{bare_peers:.2f}) "
                 f"{dep_cpu:>5.2f} ({dep_loop:.2f}+{dep_peers:.2f}) {bare_cpu / dep_cpu:>9.0%}")
-        if args.record:
-            rec = max(w.rate for w in runs["recorded"])
-            rec_cpu = med("recorded", "recorder")
-            rec_loop = med("recorded", "loop") + med("recorded", "peers")
+        if "node" in kinds:
+            rec = max(w.rate for w in runs["node"])
+            rec_cpu = med("node", "recorder")
+            rec_loop = med("node", "loop") + med("node", "peers")
             line += (f" | {rec:>10.0f} {1 - rec / real:>8.1%} {rec_cpu:>12.2f} "
-                     f"{1 - rec_loop / (rec_loop + rec_cpu):>9.1%}")
+                     f"{rec_cpu / (rec_loop + rec_cpu):>9.1%}")
+        if "sim" in kinds:
+            rec = max(w.rate for w in runs["sim"])
+            rec_loop = med("sim", "loop") + med("sim", "peers")
+            added = rec_loop - dep_cpu
+            writer = float(np.median([w.ms(w.writer_cpu_s) for w in runs["sim"]]))
+            line += (f" | {rec:>8.0f} {1 - rec / real:>8.1%} {rec_loop:>8.2f} {added:>6.2f} "
+                     f"{writer:>6.2f} {added / rec_loop:>9.1%}")
         loads = [w.load for ws in runs.values() for w in ws]
         line += f" | {min(loads):.1f}-{max(loads):.1f}"
         every = "; ".join(f"{k} " + ", ".join(f"{w.rate:.0f}/s {w.cpu_ms:.2f}ms" for w in ws)

@@ -184,6 +184,26 @@ def test_a_finished_run_keeps_its_actor_until_its_absolute_metric_is_cached(
     assert (tmp_path / "carried" / run.name / "actor.safetensors").is_file()
 
 
+def test_a_run_judged_at_several_budgets_keeps_its_actor_until_each_mode_is_cached(
+        tmp_path: Path) -> None:
+    """The protocol's greedy cache alone is not enough for a run with marked actors: its final
+    actor is still needed for the deployed mode (budget_marks)."""
+    logdir = tmp_path / "logs"
+    run = logdir / "maif-10__sdhn__s1"
+    (run / "actors").mkdir(parents=True)
+    for name in ("run.json", "DONE.json", "actor.json", "heldout_large.json"):
+        (run / name).write_text("{}")
+    (run / "config.yaml").write_text(yaml.safe_dump({"train": {"total_steps": 4096}}))
+    (run / "actor.safetensors").write_bytes(b"\0" * 64)
+    (run / "metrics.csv").write_text("step,wall_time,tag,value\n")
+    save(logdir, tmp_path / "carried")
+    assert (tmp_path / "carried" / run.name / "actor.safetensors").is_file()
+    (run / "actors" / "step_4096.deployed.json").write_text("{}")
+    save(logdir, tmp_path / "again")
+    assert not (tmp_path / "again" / run.name / "actor.safetensors").exists()
+    assert (tmp_path / "again" / run.name / "actors" / "step_4096.deployed.json").is_file()
+
+
 def test_carry_refuses_a_destination_that_overlaps_the_source(tmp_path: Path) -> None:
     """Issue 54 item 8: ``save LOGDIR LOGDIR`` replaced every run by its trimmed copy
     (TensorBoard events, checkpoints, dotfiles gone), exit 0."""

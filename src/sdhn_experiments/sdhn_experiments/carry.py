@@ -14,8 +14,9 @@ need and no more (``BUDGET_BYTES`` for all of ``carry/``, enforced by a test):
   ``heldout_large.json.xz`` / ``absolute_deliveries.json.xz``: ~8 % of their size), which the
   metrics readers (``sdhn_train.runs``) read as they are and ``restore`` unpacks;
 - the exported actor (``actor.safetensors`` + ``actor.json``) of an unfinished run, and of a
-  finished one until its absolute metric is cached: what the report computes from it is then
-  carried instead (the shipped policies live in ``models/``);
+  finished one until its absolute metric is cached (and, for a run that exported actors at
+  ``log.actor_marks``, its deployed-mode result too, ``budget_marks``): what the report
+  computes from it is then carried instead (the shipped policies live in ``models/``);
 - an unfinished run's newest checkpoint (``checkpoints/step_<n>.json`` + ``.safetensors``);
   a finished run carries none;
 - of the P_H snapshots (``hypergraph/``), a finished run's newest, the one the heatmaps read
@@ -39,6 +40,8 @@ import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+
+import yaml
 
 from sdhn_experiments.experiments import DONE, SPEC, ExperimentError, check_name
 from sdhn_train.checkpoint import checkpoint_step, latest_checkpoint
@@ -110,7 +113,7 @@ def _carried_files(run: Path, done: bool, max_bytes: int) -> tuple[list[Path], l
     top = [f for f in sorted(run.iterdir())
            if f.is_file() and not f.is_symlink() and not f.name.startswith(SKIP_PREFIXES)]
     cached = done and any((run / c).is_file() or packed(run / c).is_file()
-                          for c in ABSOLUTE_CACHES)
+                          for c in ABSOLUTE_CACHES) and _budgets_judged(run)
     files = [f.relative_to(run) for f in top if not (cached and f.name in FINAL_ACTOR)]
     logs = [f for f in files if f.name in PACKED_FILES]  # always carried: packed, they are small
     files = [f for f in files if f.name not in PACKED_FILES]
@@ -135,6 +138,19 @@ def _carried_files(run: Path, done: bool, max_bytes: int) -> tuple[list[Path], l
         kept += within if not over else []
         left += over
     return kept, left
+
+
+def _budgets_judged(run: Path) -> bool:
+    """A run that exported actors at marks is judged at several budgets (``budget_marks``),
+    its final actor in the deployed mode too: that result must be cached before the final
+    actor may stay behind."""
+    if not (run / MARKED_ACTORS_DIR).is_dir():
+        return True
+    cfg = yaml.safe_load((run / "config.yaml").read_text()) if (run / "config.yaml").is_file() \
+        else None
+    total = (cfg or {}).get("train", {}).get("total_steps")
+    return total is not None and (run / MARKED_ACTORS_DIR /
+                                  f"step_{int(total)}.deployed.json").is_file()
 
 
 def _is_packable(rel: Path) -> bool:

@@ -106,3 +106,39 @@ def test_actor_core_refuses_stall_breaking_where_it_cannot_apply() -> None:
     with pytest.raises(IncompatibleWeightsError, match="MAIF observations"):
         ActorCore(0, 3, greedy=True, seed=0, runtime=ActorRuntime.from_file(RWARE),
                   stall_rule=StallRule())
+
+
+def test_batched_resample_draws_only_for_the_rows_that_sample() -> None:
+    """The evaluations' batched step: rows flagged this step take the policy's sampled action at
+    the rule's temperature, the others keep the argmax; no row flagged, no draw at all."""
+    rt = Recorder.from_file(TINY)
+    rt.calls = []
+    rule = StallRule(calm_steps=2, progress_steps=99, sample_steps=1, temperature=50.0)
+    breaker = StallBreaker(rule, 2)
+    # row 0 stands on its goal beside a robot; row 1 walks towards its goal, so never stalls
+    h = rt.initial_state(2)
+    greedy = np.array([4, 4], dtype=np.int64)  # an action neither row would sample every time
+    rng = np.random.default_rng(0)
+    for step in range(2):
+        flat = np.stack([obs(4, 4, 4, 4, neighbour=True), obs(step, 0, 9, 0)])
+        assert breaker.resample(rt, flat, h, greedy, rng=rng).tolist() == [4, 4]
+    untouched = np.random.default_rng(0).bit_generator.state
+    assert rt.calls == [] and rng.bit_generator.state == untouched
+    seen = set()
+    for step in range(2, 40):
+        flat = np.stack([obs(4, 4, 4, 4, neighbour=True), obs(step % 9, 0, 9, 0)])
+        act = breaker.resample(rt, flat, h, greedy, rng=rng)
+        assert act[1] == 4, "a row that does not sample keeps the greedy action"
+        seen.add(int(act[0]))
+    assert rt.calls and not any(rt.calls), "the draws are sampled (greedy=False)"
+    assert len(seen) > 1, f"row 0 kept one action {seen} at temperature 50"
+
+
+def test_the_rule_a_deployment_mode_names() -> None:
+    assert StallRule.of_mode({"greedy": True}) is None
+    assert StallRule.of_mode({"break_stalls": False, "stall_rule": "1,2,3"}) is None
+    assert StallRule.of_mode({"break_stalls": True}) == StallRule()
+    assert StallRule.of_mode({"break_stalls": True, "stall_rule": ""}) == StallRule()
+    assert StallRule.of_mode({"break_stalls": True, "stall_rule": "1,2,3"}) == StallRule(1, 2, 3)
+    with pytest.raises(ValueError, match="stall rule"):
+        StallRule.of_mode({"break_stalls": True, "stall_rule": "1,2"})

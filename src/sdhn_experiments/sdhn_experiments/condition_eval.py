@@ -69,11 +69,9 @@ def card_mode(model_dir: str | Path) -> Mode:
     d = card.get("heldout_large", {}).get("deploy")
     if d is None:
         return Mode()
-    stall = None
-    if d.get("break_stalls"):
-        stall = StallRule.parse(d["stall_rule"]) if d.get("stall_rule") else StallRule()
     return Mode(greedy=bool(d["greedy"]), temperature=float(d.get("temperature", 1.0)),
-                stall=stall, dead_reckon=bool(d.get("dead_reckoning", False))).check()
+                stall=StallRule.of_mode(d), dead_reckon=bool(d.get("dead_reckoning", False))
+                ).check()
 
 
 @dataclass(frozen=True)
@@ -116,11 +114,7 @@ def evaluate_under(policy: Policy, task: str, cond: Conditions, mode: Mode, *,
         act, _, h_next = policy.act(flat, h, greedy=mode.greedy, rng=rng, robot_id=ids,
                                     temperature=mode.temperature)
         if breaker is not None:
-            stalled = breaker.update(flat)
-            if stalled.any():  # same hidden state in, so the same next hidden state out
-                drawn, _, _ = policy.act(flat, h, greedy=False, rng=rng, robot_id=ids,
-                                         temperature=breaker.rule.temperature)
-                act = np.where(stalled, drawn, act)
+            act = breaker.resample(policy, flat, h, act, rng=rng, robot_id=ids)
         h = h_next
         if dr is not None:
             dr.record(act)

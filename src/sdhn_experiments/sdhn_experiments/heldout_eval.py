@@ -126,11 +126,7 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
                                          temperature=temperature)
                 act = np.where(stuck.reshape(-1), drawn, act)
         if breaker is not None:
-            stalled = breaker.update(flat)
-            if stalled.any():  # same hidden state in, so the same next hidden state out
-                drawn, _, _ = policy.act(flat, h, greedy=False, rng=rng, robot_id=ids,
-                                         temperature=breaker.rule.temperature)
-                act = np.where(stalled, drawn, act)
+            act = breaker.resample(policy, flat, h, act, rng=rng, robot_id=ids)
         h = h_next
         res = env.step(act.reshape(b, n))
         after = env.positions

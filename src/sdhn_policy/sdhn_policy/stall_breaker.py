@@ -23,6 +23,8 @@ instances greedy completes (docs/results/heldout-large.md).
     breaker = StallBreaker(rule, robots=10)      # one row per robot (a batch of teams: b * n)
     sample = breaker.update(obs)                 # [robots] bool: who samples this step
     breaker.reset(rows)                          # a new episode for these rows
+    act = breaker.resample(runtime, obs, h, act, rng=rng)  # batched play: update, draw
+    rule = StallRule.of_mode(card_deploy_mode)   # the rule a card's or launch config's mode names
 
 Layout of the MAIF observation (``sdhn_sim.envs.maif``): own position at [0:2], goal at [4:6]
 (both divided by the grid size - 1), then the 7x7 window around the robot (2 = another robot).
@@ -30,8 +32,9 @@ Layout of the MAIF observation (``sdhn_sim.envs.maif``): own position at [0:2], 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -44,6 +47,15 @@ _CENTRE = RADIUS * WINDOW + RADIUS
 _NEIGHBOURS = COORD_FEATURES + np.array([_CENTRE - 1, _CENTRE + 1, _CENTRE - WINDOW,
                                          _CENTRE + WINDOW])
 _EPS = 1e-6  # positions are integers divided by (size - 1): differences are >= 1 / 63
+
+
+class SamplingPolicy(Protocol):
+    """What ``StallBreaker.resample`` needs of a policy (``ActorRuntime`` has it)."""
+
+    def act(self, obs: npt.ArrayLike, hidden: npt.ArrayLike, greedy: bool,
+            rng: np.random.Generator, robot_id: Any = None, *, temperature: float = 1.0
+            ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        ...
 
 
 @dataclass(frozen=True)
@@ -85,6 +97,15 @@ class StallRule:
         except ValueError as e:
             raise ValueError(f"stall rule {text!r}: {e}") from e
         return cls(ints[0], ints[1], ints[2], temp).check()
+
+    @classmethod
+    def of_mode(cls, mode: Mapping[str, Any]) -> StallRule | None:
+        """The rule a deployment mode names (a card's ``deploy``, a launch config: its
+        ``break_stalls`` and ``stall_rule``): None without stall breaking, the defaults when it
+        names no rule."""
+        if not mode.get("break_stalls"):
+            return None
+        return cls.parse(mode["stall_rule"]) if mode.get("stall_rule") else cls()
 
 
 class StallBreaker:
@@ -137,3 +158,18 @@ class StallBreaker:
         sample = self.left > 0
         self.left = np.maximum(self.left - 1, 0)
         return sample
+
+    def resample(self, policy: SamplingPolicy, obs: npt.ArrayLike, hidden: npt.ArrayLike,
+                 act: npt.NDArray[np.int64], *, rng: np.random.Generator,
+                 robot_id: npt.ArrayLike | None = None) -> npt.NDArray[np.int64]:
+        """One step of batched greedy play with stall breaking (the evaluations' loop; an actor
+        process calls ``update`` itself): ``update`` with this step's observations, and the rows
+        that sample take an action drawn from ``policy`` at the rule's temperature instead of
+        ``act`` (the argmax). The draw starts from the same hidden state, so the greedy call's
+        next hidden state holds for every row; nothing is drawn when no row samples."""
+        sample = self.update(obs)
+        if not sample.any():
+            return act
+        drawn, _, _ = policy.act(obs, hidden, greedy=False, rng=rng, robot_id=robot_id,
+                                 temperature=self.rule.temperature)
+        return np.where(sample, drawn, act)

@@ -139,8 +139,7 @@ def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
     weights = ROOT / cfg["weights"]  # the shipped configs name a model folder (its actor file)
     rt = ActorRuntime.from_file(weights / "actor.safetensors" if weights.is_dir() else weights)
     greedy, temperature = bool(cfg.get("greedy", True)), float(cfg.get("temperature", 1.0))
-    rule = (StallRule.parse(cfg["stall_rule"]) if cfg.get("stall_rule") else StallRule()
-            ) if cfg.get("break_stalls") else None
+    rule = StallRule.of_mode(cfg)
     played = list(range(100)) if instances is None else instances
     b = len(played)
     env = ConditionedEnv(make_env(cfg["env"], num_envs=b, seed=seed, max_steps=max_steps,
@@ -158,11 +157,7 @@ def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
         act, _, h_next = rt.act(flat, h, greedy=greedy, rng=rng, robot_id=ids,
                                 temperature=temperature)
         if breaker is not None:
-            stalled = breaker.update(flat)
-            if stalled.any():
-                drawn, _, _ = rt.act(flat, h, greedy=False, rng=rng, robot_id=ids,
-                                     temperature=breaker.rule.temperature)
-                act = np.where(stalled, drawn, act)
+            act = breaker.resample(rt, flat, h, act, rng=rng, robot_id=ids)
         h = h_next
         res = env.step(act.reshape(b, n))
         for o in env.outcomes:

@@ -57,6 +57,26 @@ def test_maif_ego_features_on_a_known_observation() -> None:
     assert maif_ego(on)[5] == 1.0 and maif_ego(on)[4] == 0.0
 
 
+def test_maif_ego_of_one_row_has_the_bits_of_its_row_in_a_batch() -> None:
+    """The actor computes one robot's features per step, the learner a batch at once: the same
+    bits either way, on real observations and on edge values (on goal, NaN, infinities)."""
+    obs = maif_obs_sequence().reshape(-1, 57)
+    rng = np.random.default_rng(5)
+    edges = obs[:40].copy()
+    edges[:, :8] = rng.choice(np.array([0, 1, -1, 1e-5, np.nan, np.inf], np.float32),
+                              edges[:, :8].shape)
+    edges[::3, 4:6] = edges[::3, 0:2]
+    for rows in (obs, edges):
+        with np.errstate(invalid="ignore"):
+            batch = maif_ego(rows)
+            alone = np.stack([maif_ego(r) for r in rows])
+            paired = maif_ego(rows.reshape(-1, 2, 57))
+        assert batch.dtype == alone.dtype == np.float32
+        np.testing.assert_array_equal(batch.view(np.uint32), alone.view(np.uint32))
+        np.testing.assert_array_equal(paired.reshape(-1, 114).view(np.uint32),
+                                      batch.view(np.uint32))
+
+
 def test_features_of_one_robot_use_its_own_observation_only() -> None:
     obs = maif_obs_sequence(10)  # [T, N, 57]
     batched = maif_ego(obs)

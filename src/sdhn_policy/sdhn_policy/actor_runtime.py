@@ -154,8 +154,9 @@ class ActorRuntime:
         gi = x @ self._w_ih + self._b_ih
         gh = h @ self._w_hh + self._b_hh
         g = self.spec.gru_hidden
-        r = _sigmoid(gi[:, :g] + gh[:, :g])
-        z = _sigmoid(gi[:, g : 2 * g] + gh[:, g : 2 * g])
+        # both gates in one elementwise pass (the same float32 operations per element as two)
+        rz = _sigmoid(gi[:, : 2 * g] + gh[:, : 2 * g])
+        r, z = rz[:, :g], rz[:, g:]
         n = np.tanh(gi[:, 2 * g :] + r * gh[:, 2 * g :])
         h_next = np.asarray((1.0 - z) * n + z * h, dtype=np.float32)
         logits = np.asarray(h_next @ self._w_out + self._b_out, dtype=np.float32)

@@ -50,6 +50,7 @@ _COORDS = 8
 _CENTRE = 3 * _WIN + 3
 _NEIGHBOURS = np.array([_CENTRE - _WIN, _CENTRE + _WIN, _CENTRE - 1, _CENTRE + 1])
 _ON_GOAL_EPS = 1e-4  # coordinates are multiples of 1 / (size - 1) >= 1 / 95
+_EGO_SIZE = 12 + 4 + 2 * (MAIF_OBS_SIZE - _COORDS)
 
 
 def identity(obs: npt.ArrayLike) -> F32:
@@ -57,27 +58,32 @@ def identity(obs: npt.ArrayLike) -> F32:
 
 
 def maif_ego(obs: npt.ArrayLike) -> F32:
-    """``maif-ego/1`` (see the module docstring): [..., 57] -> [..., 114]."""
+    """``maif-ego/1`` (see the module docstring): [..., 57] -> [..., 114].
+
+    Every part is computed into its slice of one output array (the same float32 operations as
+    stacking and concatenating the parts, so the same bits): an actor calls this once per step
+    for one row, where each temporary array and each extra NumPy call costs more than the
+    arithmetic."""
     o = np.asarray(obs, dtype=np.float32)
     if o.shape[-1] != MAIF_OBS_SIZE:
         raise ValueError(f"{MAIF_EGO} needs observations of length {MAIF_OBS_SIZE}, "
                          f"got {o.shape[-1]}")
-    x, y, mx, my = o[..., 0], o[..., 1], o[..., 2], o[..., 3]
-    gx, gy, mgx, mgy = o[..., 4], o[..., 5], o[..., 6], o[..., 7]
-    dx, dy = gx - x, gy - y
-    l1 = np.abs(dx) + np.abs(dy)
-    on_goal = (l1 < _ON_GOAL_EPS).astype(np.float32)
-    fx, fy = (x - mx) - (gx - mgx), (y - my) - (gy - mgy)
+    out = np.empty((*o.shape[:-1], _EGO_SIZE), dtype=np.float32)
+    pos, mpos, goal, mgoal = o[..., 0:2], o[..., 2:4], o[..., 4:6], o[..., 6:8]
+    d = np.subtract(goal, pos, out=out[..., 0:2])  # dx, dy
+    np.sign(d, out=out[..., 2:4])
+    ad = np.abs(d)
+    l1 = np.add(ad[..., 0], ad[..., 1], out=out[..., 4])
+    out[..., 5] = l1 < _ON_GOAL_EPS  # on_goal
+    f = np.subtract(pos - mpos, goal - mgoal, out=out[..., 6:8])  # fx, fy
+    np.sign(f, out=out[..., 8:10])
+    np.subtract(mgoal, mpos, out=out[..., 10:12])
     win = o[..., _COORDS:]
-    obstacle = (win == 1.0).astype(np.float32)
-    robot = (win == 2.0).astype(np.float32)
-    blocked = (win[..., _NEIGHBOURS] != 0.0).astype(np.float32)
-    parts = [
-        np.stack([dx, dy, np.sign(dx), np.sign(dy), l1, on_goal, fx, fy, np.sign(fx),
-                  np.sign(fy), mgx - mx, mgy - my], axis=-1),
-        blocked, obstacle, robot,
-    ]
-    return np.concatenate(parts, axis=-1).astype(np.float32, copy=False)
+    cells = MAIF_OBS_SIZE - _COORDS
+    out[..., 12:16] = win[..., _NEIGHBOURS] != 0.0  # blocked
+    out[..., 16:16 + cells] = win == 1.0  # obstacle
+    out[..., 16 + cells:] = win == 2.0  # robot
+    return out
 
 
 TRANSFORMS: dict[str, Transform] = {IDENTITY: identity, MAIF_EGO: maif_ego}

@@ -8,6 +8,9 @@
 2. The cores (environments, the lock-step core, the actor's NumPy runtime, the trainer) import
    neither rclpy nor ROS messages, so they train and evaluate without a ROS install; only node
    files, recording code and ``sdhn_base.ros`` do.
+3. No two modules import each other, directly or round a longer circle (an import inside a
+   function counts too): a circle means neither can be read, tested or moved without the other,
+   and what they share belongs in a third module both import.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -59,3 +63,84 @@ def test_core_modules_import_no_ros() -> None:
                           timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]", done.stdout
+
+
+def _modules() -> dict[str, Path]:
+    """Every module of our packages by dotted name (a package by its ``__init__``)."""
+    found: dict[str, Path] = {}
+    for package in FLOORS:
+        for path in (SRC / package / package).rglob("*.py"):
+            parts = path.relative_to(SRC / package).with_suffix("").parts
+            found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def _imports(path: Path, modules: dict[str, Path]) -> set[str]:
+    """The modules of ours that ``path`` imports (``from a.b import c`` is a.b.c when c is a
+    module, else a.b), at any depth of the file."""
+    names: list[str] = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names += [f"{node.module}.{a.name}" for a in node.names]
+    found = set()
+    for name in names:
+        known = name
+        while known and known not in modules:
+            known = known.rpartition(".")[0]
+        if known:
+            found.add(known)
+    return found
+
+
+def _circles(graph: dict[str, set[str]]) -> Iterator[list[str]]:
+    """The strongly connected groups of more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    for start, edges_out in graph.items():
+        if start in index:
+            continue
+        work = [(start, iter(sorted(edges_out)))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            v, edges = work[-1]
+            w = next(edges, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                elif w in on_stack:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                group = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    group.append(w)
+                    if w == v:
+                        break
+                if len(group) > 1:
+                    yield sorted(group)
+
+
+def test_no_import_circles() -> None:
+    modules = _modules()
+    graph = {m: _imports(p, modules) - {m} for m, p in modules.items()}
+    circles = list(_circles(graph))
+    assert not circles, f"modules that import each other (move what they share): {circles}"
+
+
+def test_the_circle_finder_finds_a_circle() -> None:
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": set()}
+    assert list(_circles(graph)) == [["a", "b", "c"]]

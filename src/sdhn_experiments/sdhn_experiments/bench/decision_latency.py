@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from sdhn_base.ros import topics
-from sdhn_experiments.bench.ros import ENVS, ROS2, make_weights, spawn, stop
+from sdhn_experiments.bench.processes import ENVS, ROS2, make_weights, spawn, stop
 
 NS = "/sdhn"
 

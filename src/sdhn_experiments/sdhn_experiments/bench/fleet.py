@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sdhn_experiments.bench import CHECKOUT as ROOT
-from sdhn_experiments.bench.ros import cpu_seconds, make_weights
+from sdhn_experiments.bench.processes import cpu_seconds, make_weights
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 
 ENVS = {c.num_robots: name for name, c in MAIF_CONFIGS.items() if name != "maif-solo"}

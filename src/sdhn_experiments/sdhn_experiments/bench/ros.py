@@ -34,7 +34,6 @@ import argparse
 import array
 import os
 import re
-import select
 import subprocess
 import sys
 import tempfile
@@ -47,24 +46,17 @@ import numpy as np
 from sdhn_base.ros import cdr, topics
 from sdhn_base.ros.status import EventReader
 from sdhn_experiments.bench import CHECKOUT
-from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+from sdhn_experiments.bench.processes import (
+    ENVS,
+    ROS2,
+    cpu_seconds,
+    make_weights,
+    spawn,
+    stop,
+    wait_line,
+)
 
 ROOT = CHECKOUT
-ROS2 = [sys.executable, "-m", "sdhn_bringup.ros2_cli", "run"]
-ENVS = {c.num_robots: name for name, c in MAIF_CONFIGS.items() if name != "maif-solo"}
-"""N -> the MAIF task with N robots: 4 (maif-tiny), 10, 16, 20, 30, 40, 60, 100."""
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_seconds(pid: int) -> float:
-    """CPU time (user + system, every thread) a live process has used, from /proc/<pid>/stat;
-    0.0 once it is gone (the caller reads before it stops the process)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return 0.0
-    fields = stat[stat.rindex(")") + 2:].split()  # the command name may hold spaces
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS  # utime, stime (fields 14, 15)
 
 
 @dataclass
@@ -90,58 +82,6 @@ class Window:
     def cpu_ms(self) -> float:
         """Loop CPU per round (master/sim + peers), without the recorder."""
         return self.ms(self.loop_cpu_s + self.peers_cpu_s)
-
-
-def make_weights(out: Path) -> Path:
-    from sdhn_policy.weights import ActorSpec, encode_actor, save_actor_file
-
-    spec = ActorSpec(obs_size=57, num_actions=5)
-    rng = np.random.default_rng(0)
-    tensors = {k: (rng.standard_normal(s) * 0.2).astype(np.float32)
-               for k, s in spec.tensor_shapes().items()}
-    path = out / "actor.safetensors"
-    save_actor_file(path, encode_actor(spec, tensors, version=1))
-    return path
-
-
-def wait_line(proc: subprocess.Popen[bytes], needle: str, timeout: float) -> tuple[bool, list[str]]:
-    """Read the child's output until a line contains ``needle``; (found, lines read)."""
-    seen: list[str] = []
-    end = time.monotonic() + timeout
-    assert proc.stdout is not None
-    fd = proc.stdout.fileno()
-    buf = b""
-    while time.monotonic() < end:
-        ready, _, _ = select.select([fd], [], [], 0.05)
-        if not ready:
-            continue
-        chunk = os.read(fd, 65536)
-        if not chunk:
-            return False, seen
-        buf += chunk
-        *lines, rest = buf.split(b"\n")
-        buf = rest
-        text = [line.decode(errors="replace") for line in lines]
-        seen += text
-        if any(needle in line for line in text):
-            return True, seen
-    return False, seen
-
-
-def spawn(args: list[str]) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
-
-
-def stop(procs: list[subprocess.Popen[bytes]]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(2)
-    for p in procs:
-        try:
-            p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
 
 
 # --- 1a. the ceiling: bare lock-step master + N bare echo processes ------------------------------

@@ -118,6 +118,21 @@ def test_reference_pages_stand_without_the_notebook(page: Path) -> None:
     assert not headings, f"{page.name}: notebook headings in a reference page: {headings}"
 
 
+NARRATION = re.compile(r"\b(sessions?|this round|in progress|stopped for time|today|yesterday"
+                       r"|so far|carried between \w+)\b", re.I)
+"""Words that tell how the project's own work went (its sessions, what was running, what is left)
+rather than what the code does and what was measured."""
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_reference_pages_do_not_narrate_the_work(page: Path) -> None:
+    """The README and the reference pages say what the code does and what was measured (machine,
+    date, load); how the runs went, session by session, is the notebook's (docs/notebook/)."""
+    found = [f"{i}: {m.group(0)!r}" for i, line in enumerate(page.read_text().splitlines(), 1)
+             for m in NARRATION.finditer(line)]
+    assert not found, f"{page.name} narrates the work (move it to docs/notebook/): {found}"
+
+
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
 def test_named_scripts_and_configs_exist(page: Path) -> None:
     text = page.read_text(encoding="utf-8")

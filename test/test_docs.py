@@ -124,10 +124,12 @@ NARRATION = re.compile(r"\b(sessions?|this round|in progress|stopped for time|to
 rather than what the code does and what was measured."""
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
+@pytest.mark.parametrize("page", sorted({*PAGES, *REFERENCE}),
+                         ids=lambda p: p.relative_to(ROOT).as_posix())
 def test_reference_pages_do_not_narrate_the_work(page: Path) -> None:
-    """The README and the reference pages say what the code does and what was measured (machine,
-    date, load); how the runs went, session by session, is the notebook's (docs/notebook/)."""
+    """The README, the reference pages and the committed reports say what the code does and what
+    was measured (machine, date, load); how the runs went, session by session, is the notebook's
+    (docs/notebook/)."""
     found = [f"{i}: {m.group(0)!r}" for i, line in enumerate(page.read_text().splitlines(), 1)
              for m in NARRATION.finditer(line)]
     assert not found, f"{page.name} narrates the work (move it to docs/notebook/): {found}"

@@ -449,9 +449,9 @@ def in_progress(runs: list[Run]) -> list[dict[str, Any]]:
 
 
 def in_progress_table(progress: list[dict[str, Any]]) -> list[str]:
-    md = ["## In progress (not counted)", "",
-          "Unfinished runs: their latest greedy evaluation during training (MAIF: the fixed "
-          "instances; RWARE: deliveries per episode), a measurement so far, not a result.", "",
+    md = ["## Unfinished runs (not counted)", "",
+          "Runs the logs hold short of their budget: their latest greedy evaluation during "
+          "training (MAIF: the fixed instances; RWARE: deliveries per episode), not a result.", "",
           "| run | latest evaluation | at step | of |", "|---|---|---|---|"]
     for p in progress:
         digits = domain_of(p["task"]).digits

@@ -5,7 +5,7 @@ MAIF: agent-steps/s of the batched core at (B=1, N=10), (B=64, N=10), (B=64, N=2
 (``test/envs`` checks that it agrees with the batched core step for step).
 RWARE: adapter vs raw ``gym.make("rware-...")`` stepping, same actions; overhead in %.
 
-    PYTHONPATH=src/sdhn_sim python scripts/bench_envs.py [--quick]
+    .venv/bin/python scripts/bench_envs.py [--quick]
 """
 
 from __future__ import annotations

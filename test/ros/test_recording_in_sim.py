@@ -2,12 +2,15 @@
 the same deployment (seed, weights, greedy) recorded once by the recorder node and once by the
 simulator holds the same messages per topic in the same order, with the same schemas and channel
 QoS; rosbags and ``replay`` read it as they read the recorder's; the launcher's option is
-validated and drops the recorder process."""
+validated and drops the recorder process; a simulator killed while recording leaves a file
+readable up to its last chunk."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,6 +22,7 @@ from sdhn_bringup.supervisor import LaunchConfigError, load_config, node_paramet
 from sdhn_sim.recording.reader import Recording, read_recording
 from sdhn_sim.recording.rosbag2 import QOS_KEY, parse_offered_qos
 
+from .deploy_helpers import actor_cmd, sim_cmd
 from .processes import ROS2, node_processes
 
 LAUNCH = [sys.executable, "-m", "sdhn_bringup", "configs/launch/deploy-tiny.yaml"]
@@ -126,3 +130,28 @@ def test_sim_refuses_a_recording_path_it_cannot_use(tmp_path: Path) -> None:
         sim.proc.wait(timeout=60)
     assert sim.proc.returncode == 2, sim.output
     assert "recording: '..'; allowed:" in sim.output, sim.output
+
+
+def test_a_killed_simulator_leaves_a_recording_readable_to_its_last_chunk(tmp_path: Path) -> None:
+    """SIGKILL: no summary, but every complete chunk reads (replay says where it stops)."""
+    out, ns = tmp_path / "killed.mcap", "/insim_kill"
+    weights = MODEL / "actor.safetensors"
+    commands = [sim_cmd(ns=ns, episodes=0, recording=str(out)),
+                *(actor_cmd(i, 4, ns=ns, weights_file=str(weights)) for i in range(4))]
+    with node_processes(*commands) as (sim, *_actors):
+        assert sim.wait_for_line("starting episode 0", timeout=60), sim.output
+        end = time.monotonic() + 60
+        while out.stat().st_size < 60_000:  # chunks of 256 KiB (~40 kB compressed) written
+            assert time.monotonic() < end and sim.proc.poll() is None, sim.output
+            time.sleep(0.1)
+        sim.proc.send_signal(signal.SIGKILL)
+        sim.proc.wait(timeout=10)
+    rec = read_recording(out)
+    assert rec.truncated is not None and rec.truncated.messages == len(rec.messages) > 100
+    counts = {t.rsplit("/", 2)[-2] + "/" + t.rsplit("/", 1)[-1] if "robot_" in t
+              else t.rsplit("/", 1)[-1]: n for t, n in rec.topics().items()}
+    assert counts["robot_0/obs"] > 10 and counts["state"] > 10, counts
+    done = subprocess.run([*ROS2, "run", "sdhn_sim", "replay", str(out), "--summary"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.strip().startswith("replay: recording truncated after"), done.stderr

@@ -45,6 +45,7 @@ setup(
             "tune_stall_rule = sdhn_experiments.stall_rule_cli:main",
             "card_heldout_large = sdhn_experiments.card_heldout:main",
             "make_figures = sdhn_experiments.figures:main",
+            "robustness_suite = sdhn_experiments.robustness:main",
         ],
     },
 )

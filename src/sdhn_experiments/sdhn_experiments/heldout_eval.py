@@ -158,12 +158,13 @@ def default_planner_cache() -> Path:
 
 
 def planner_makespans(task: str, which: str, cache_dir: Path | None = None, *,
-                      chunk: int = 50, seed: int = 0,
-                      progress: bool = False) -> list[int | None]:
+                      chunk: int = 50, seed: int = 0, progress: bool = False,
+                      instances: int | None = None) -> list[int | None]:
     """The scripted planner's makespan on every instance of the set (None: it did not finish),
     computed in chunks and cached in ``cache_dir/planner-<task>-<which>-<checksum>.json`` (the
     planner is slow on large teams; an interrupted computation resumes from the chunks done,
-    and processes computing the same set at once skip each other's chunks)."""
+    and processes computing the same set at once skip each other's chunks). ``instances``: only
+    the first that many (the chunks covering them)."""
     inst = set_instances(task, which)
     path = None
     done: dict[str, int | None] = {}
@@ -172,7 +173,7 @@ def planner_makespans(task: str, which: str, cache_dir: Path | None = None, *,
         path = cache_dir / f"planner-{task}-{which}-{set_checksum(inst)[:16]}.json"
         if path.is_file():
             done = json.loads(path.read_text())["makespan"]
-    total = inst.num_instances
+    total = inst.num_instances if instances is None else min(int(instances), inst.num_instances)
     for start in range(0, total, chunk):
         ids = list(range(start, min(start + chunk, total)))
         if path is not None and path.is_file():  # another process may have added chunks

@@ -23,11 +23,21 @@ a lost action does); and under the ideal world for reference. It prints whether 
 lie in the in-process intervals.
 
     .venv/bin/python scripts/realtime_deploy.py --inprocess docs/results/realtime-deploy.json
+
+``--dead-reckoning on|off|both`` runs each config and rate with the actors' dead reckoning on,
+off, or once each (default: as the card says); conditions ride on ``--set 'conditions={latency:
+1}'``. Each run records both from its parameters file, and the in-process comparison plays the
+run's conditions (plus the matched staleness and misses) with dead reckoning where the run had
+it. ``--clock lockstep`` runs each config once in lock-step (no rate):
+
+    .venv/bin/python scripts/realtime_deploy.py --clock lockstep --episodes 20 \
+        --set 'conditions={latency: 1}' --dead-reckoning both --json /tmp/dr.json
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -110,12 +120,18 @@ def summarise(events: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def run_one(config: str, rate: float, args: argparse.Namespace
+def run_one(config: str, rate: float | None, args: argparse.Namespace, reckon: bool | None
             ) -> tuple[Path, float, tuple[float, float], int]:
-    episodes, seed, out, extra = args.episodes, args.seed, args.out, args.set
-    name = f"{Path(config).stem}-{rate:g}hz"
+    """One launcher run; ``rate`` None = lock-step; ``reckon`` None = as the card says."""
+    episodes, seed, out = args.episodes, args.seed, args.out
+    extra = [*args.set, *([f"dead_reckoning={str(reckon).lower()}"] if reckon is not None
+                          else [])]
+    name = (f"{Path(config).stem}-{rate:g}hz" if rate is not None else
+            f"{Path(config).stem}-lockstep") + {None: "", True: "-dr", False: "-plain"}[reckon]
     run_dir = out / name
-    sets = ["clock=realtime", f"rate_hz={float(rate)}", f"episodes={episodes}", f"seed={seed}",
+    clock = ["clock=realtime", f"rate_hz={float(rate)}"] if rate is not None else \
+        ["clock=lockstep"]
+    sets = [*clock, f"episodes={episodes}", f"seed={seed}",
             "recorder=false", f"run_dir={run_dir}", f"team_ns=/rt_{name.replace('-', '_')}",
             "status_interval=30", *extra]
     cmd = [sys.executable, "-m", "sdhn_bringup", config, *(a for s in sets for a in ("--set", s))]
@@ -125,12 +141,31 @@ def run_one(config: str, rate: float, args: argparse.Namespace
     return run_dir, time.monotonic() - t0, (load0, os.getloadavg()[0]), code
 
 
+def run_settings(run_dir: Path) -> tuple[bool, dict[str, Any]]:
+    """(dead reckoning, conditions block) a run's nodes were started with (its params.yaml)."""
+    from sdhn_base.yaml_io import load_yaml
+
+    path = run_dir / "params.yaml"
+    if not path.exists():
+        return False, {}
+    nodes = load_yaml(path, what="params file") or {}
+    actors = [v["ros__parameters"] for k, v in nodes.items() if k.endswith("/actor")]
+    sim: dict[str, Any] = next((v["ros__parameters"] for k, v in nodes.items()
+                                if k.endswith("/sim")), {})
+    text = sim.get("conditions") or ""
+    return (any(bool(a.get("dead_reckoning")) for a in actors),
+            dict(load_yaml(text, what="conditions") or {}) if text else {})
+
+
 def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
-                    seed: int = 0, instances: list[int] | None = None) -> dict[str, Any]:
+                    seed: int = 0, instances: list[int] | None = None, *,
+                    dead_reckoning: bool = False) -> dict[str, Any]:
     """One episode per instance of the "train" set (or of ``instances``, in that order) under
-    ``cond_block``, in the config's deployment mode; success and makespan, 95 % intervals."""
+    ``cond_block``, in the config's deployment mode (with dead reckoning if asked); success and
+    makespan, 95 % intervals."""
     from sdhn_base.yaml_io import load_yaml
     from sdhn_policy.actor_runtime import ActorRuntime
+    from sdhn_policy.dead_reckoning import DeadReckoner
     from sdhn_policy.stall_breaker import StallBreaker, StallRule
     from sdhn_sim.envs import make_env
     from sdhn_sim.envs.conditions import ConditionedEnv, conditions_from_dict
@@ -151,14 +186,19 @@ def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
     ids = np.tile(np.arange(n), b) if rt.spec.use_robot_id else None
     rng = np.random.default_rng(seed)
     breaker = StallBreaker(rule, b * n) if rule is not None else None
+    dr = DeadReckoner(b * n, int(getattr(env.inner_env, "size", 0))) if dead_reckoning else None
     out: dict[int, Any] = {}
     while len(out) < b:
         flat = obs.reshape(b * n, -1)
+        if dr is not None:
+            flat = dr.correct(flat, env.obs_age.reshape(-1))
         act, _, h_next = rt.act(flat, h, greedy=greedy, rng=rng, robot_id=ids,
                                 temperature=temperature)
         if breaker is not None:
             act = breaker.resample(rt, flat, h, act, rng=rng, robot_id=ids)
         h = h_next
+        if dr is not None:
+            dr.record(act)
         res = env.step(act.reshape(b, n))
         for o in env.outcomes:
             out.setdefault(o.env_index, o)
@@ -166,11 +206,14 @@ def play_in_process(config: str, cond_block: dict[str, Any], max_steps: int,
             h[ep.env_index * n:(ep.env_index + 1) * n] = 0.0
             if breaker is not None:
                 breaker.reset(slice(ep.env_index * n, (ep.env_index + 1) * n))
+            if dr is not None:
+                dr.reset(slice(ep.env_index * n, (ep.env_index + 1) * n))
         obs = res.obs
     oks = [out[e].survivors_completed for e in range(b)]
     ms = mean_interval([float(out[e].survivors_makespan) for e in range(b) if oks[e]])
     k = int(sum(oks))
-    return {"conditions": cond_block, "instances": b, "success": k / b,
+    return {"conditions": cond_block, "dead_reckoning": dead_reckoning, "instances": b,
+            "success": k / b,
             "success_ci": wilson(k, b), "makespan": ms[0], "makespan_ci": (ms[1], ms[2]),
             "per_instance": [[played[e], bool(oks[e]),
                               out[e].survivors_makespan if oks[e] else None] for e in range(b)]}
@@ -190,15 +233,20 @@ def compare(path: Path) -> None:
     for run in data["runs"]:
         if run["config"] not in ideal:
             ideal[run["config"]] = play_in_process(run["config"], {}, limit)
-        lat = round(run["mean_staleness"] or 0)
-        block: dict[str, Any] = {"lost_actions": round(min(run["missed_fraction"] or 0, 0.99), 3)}
+        reckon = bool(run.get("dead_reckoning", False))
+        # the run's own conditions, with the staleness and misses the clock added on top
+        block: dict[str, Any] = dict(run.get("conditions") or {})
+        lat = round(run["mean_staleness"] or 0) + int(block.get("latency", 0))
+        block["lost_actions"] = round(min(float(block.get("lost_actions", 0.0))
+                                          + (run["missed_fraction"] or 0), 0.99), 3)
         if lat:
             block["latency"] = lat
         run["inprocess_ideal"] = ideal[run["config"]]
-        run["inprocess_matched"] = m = play_in_process(run["config"], block, limit)
+        run["inprocess_matched"] = m = play_in_process(run["config"], block, limit,
+                                                       dead_reckoning=reckon)
         played = [int(e["instance_id"]) for e in run["per_episode"]]
         run["inprocess_matched_same_instances"] = same = play_in_process(
-            run["config"], block, limit, instances=played)
+            run["config"], block, limit, instances=played, dead_reckoning=reckon)
         inside_s = inside(run["success"], m["success_ci"])
         inside_m = inside(run["makespan"], m["makespan_ci"])
         run["within_interval"] = {"success": inside_s, "makespan": inside_m,
@@ -207,8 +255,9 @@ def compare(path: Path) -> None:
                                   "inprocess_in_ros_makespan": inside(m["makespan"],
                                                                       run["makespan_ci"])}
         i = ideal[run["config"]]
-        print(f"{Path(run['config']).stem} {run['rate_hz']:g} Hz: ROS success {run['success']:.2f}"
-              f", makespan {run['makespan'] or math.nan:.1f} | in process {block}: success "
+        print(f"{label(run)}: ROS success {run['success']:.2f}"
+              f", makespan {run['makespan'] or math.nan:.1f} | in process {block}"
+              f"{' with dead reckoning' if reckon else ''}: success "
               f"{fmt_ci(m['success'], m['success_ci'])}, makespan "
               f"{fmt_ci(m['makespan'], m['makespan_ci'], 1)} (inside: success {inside_s}, "
               f"makespan {inside_m}) | same {len(played)} instances in process: success "
@@ -235,11 +284,24 @@ def fmt_ci(v: float, ci: tuple[float, float], digits: int = 2) -> str:
     return f"{v:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
 
 
+def label(run: dict[str, Any]) -> str:
+    """'deploy-maif10 10 Hz', 'deploy-maif20 lock-step', with the run's conditions and dead
+    reckoning where it had them."""
+    clock = f"{run['rate_hz']:g} Hz" if run.get("rate_hz") else "lock-step"
+    extra = "".join([f" {run['conditions']}" if run.get("conditions") else "",
+                     " + dead reckoning" if run.get("dead_reckoning") else ""])
+    return f"{Path(run['config']).stem} {clock}{extra}"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--configs", nargs="+", default=CONFIGS)
     p.add_argument("--rates", nargs="+", type=float, default=[5.0, 10.0, 20.0])
+    p.add_argument("--dead-reckoning", choices=("card", "on", "off", "both"), default="card",
+                   help="the actors' dead reckoning: as the card says, on, off, or a run of each")
+    p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
+                   help="lockstep: one run per config, no rate (e.g. with --set conditions=...)")
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--out", type=Path, default=Path(f"runs/realtime-{time.strftime('%H%M%S')}"))
@@ -254,27 +316,32 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     args.out.mkdir(parents=True, exist_ok=True)
     results = []
-    for config in args.configs:
-        for rate in args.rates:
-            run_dir, wall, load, code = run_one(config, rate, args)
-            s = summarise(read_events(run_dir))
-            s |= {"config": config, "rate_hz": rate, "wall_s": round(wall, 1),
-                  "load_avg_1min": load, "exit_code": code, "run_dir": str(run_dir)}
-            results.append(s)
-            f = s["staleness_fraction"]
-            print(f"{Path(config).stem} {rate:g} Hz: {s['episodes']} episodes, success "
-                  f"{fmt_ci(s['success'], s['success_ci'])}, makespan "
-                  f"{fmt_ci(s['makespan'], s['makespan_ci'], 1)}; staleness 0/1/2+ "
-                  f"{f['0']:.3f}/{f['1']:.3f}/{f['2+']:.3f} (mean {s['mean_staleness']:.3f}), "
-                  f"missed {s['missed_fraction']:.3f}, superseded {s['superseded']}, late ticks "
-                  f"{s['late_ticks']}, achieved {s['achieved_hz']:.2f} Hz; {wall:.0f} s, load "
-                  f"{load[0]:.1f}->{load[1]:.1f}, exit {code}", flush=True)
-            if args.json:
-                args.json.parent.mkdir(parents=True, exist_ok=True)
-                meta = {"machine": f"{os.cpu_count()} cores", "seed": args.seed,
-                        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                        "sets": args.set}
-                args.json.write_text(json.dumps(no_nan({"meta": meta, "runs": results}), indent=1))
+    rates: list[float | None] = list(args.rates) if args.clock == "realtime" else [None]
+    choices: dict[str, list[bool | None]] = {"card": [None], "on": [True], "off": [False],
+                                             "both": [False, True]}
+    reckons = choices[args.dead_reckoning]
+    for config, rate, reckon in itertools.product(args.configs, rates, reckons):
+        run_dir, wall, load, code = run_one(config, rate, args, reckon)
+        s = summarise(read_events(run_dir))
+        reckoned, conditions = run_settings(run_dir)
+        s |= {"config": config, "clock": args.clock, "rate_hz": rate,
+              "dead_reckoning": reckoned, "conditions": conditions, "wall_s": round(wall, 1),
+              "load_avg_1min": load, "exit_code": code, "run_dir": str(run_dir)}
+        results.append(s)
+        f = s["staleness_fraction"]
+        print(f"{label(s)}: {s['episodes']} episodes, success "
+              f"{fmt_ci(s['success'], s['success_ci'])}, makespan "
+              f"{fmt_ci(s['makespan'], s['makespan_ci'], 1)}; staleness 0/1/2+ "
+              f"{f['0']:.3f}/{f['1']:.3f}/{f['2+']:.3f} (mean {s['mean_staleness']:.3f}), "
+              f"missed {s['missed_fraction']:.3f}, superseded {s['superseded']}, late ticks "
+              f"{s['late_ticks']}, achieved {s['achieved_hz']:.2f} Hz; {wall:.0f} s, load "
+              f"{load[0]:.1f}->{load[1]:.1f}, exit {code}", flush=True)
+        if args.json:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            meta = {"machine": f"{os.cpu_count()} cores", "seed": args.seed,
+                    "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                    "sets": args.set}
+            args.json.write_text(json.dumps(no_nan({"meta": meta, "runs": results}), indent=1))
     return 0
 
 

@@ -138,3 +138,42 @@ def test_without_dead_reckoning_the_age_is_not_read(rt: ActorRuntime) -> None:
     o = stale_observations(0, 1)[0]
     assert isinstance(c.on_obs(0, 0, 0, 4, o, obs_age=None), Decision)
     assert isinstance(c.on_obs(0, 1, 0, 4, o, obs_age=7), Decision)
+
+
+def test_lockstep_actors_with_dead_reckoning_act_as_the_in_process_batch() -> None:
+    """The deployment's path (the lock-step simulator's frames with ``obs_age``, one actor core
+    per robot) and the in-process one (``ConditionedEnv`` and one batched reckoner, as
+    condition_eval runs it) choose the same actions step for step: greedy maif-20 under one
+    step of latency, 150 steps (the two once parted at step 111 on one bit of a coordinate)."""
+    from sdhn_sim.envs import make_env
+    from sdhn_sim.lockstep import LockstepSim, SimConfig
+
+    rt = ActorRuntime.from_file("models/maif-20-sdhn/actor.safetensors")
+    sim = LockstepSim(SimConfig(env="maif-20", seed=11, max_steps=500,
+                                conditions=Conditions(latency=1)))
+    n = sim.num_robots
+    cores = [ActorCore(i, n, True, 11, rt, dead_reckon_grid=64) for i in range(n)]
+    frame = sim.reset()
+    env = ConditionedEnv(make_env("maif-20", num_envs=1, seed=0, max_steps=500,
+                                  instance_order="round_robin", instance_ids=[sim.instance_id]),
+                         Conditions(latency=1))
+    obs, _ = env.reset()
+    h, batch = rt.initial_state(n), DeadReckoner(n, 64)
+    for t in range(150):
+        assert np.array_equal(frame.obs_age, env.obs_age[0]), t
+        want, _, h = rt.act(batch.correct(obs[0], env.obs_age[0]), h, greedy=True,
+                            rng=np.random.default_rng(0))
+        batch.record(want)
+        got = []
+        for i, c in enumerate(cores):
+            out = c.on_obs(frame.episode, frame.step, i, n, frame.obs[i],
+                           obs_age=int(frame.obs_age[i]))
+            assert isinstance(out, Decision)
+            got.append(out.action)
+            sim.submit(i, frame.episode, frame.step, out.action, 1)
+        assert got == want.tolist(), t
+        frame, result = sim.advance()
+        obs = env.step(want[None]).obs
+        if result is not None:
+            break
+    assert sum(c.reckoned for c in cores) > 100  # the rule did move observations

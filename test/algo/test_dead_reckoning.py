@@ -49,10 +49,35 @@ def test_a_lone_robot_moved_forward_sees_what_it_sees_now(delay: int) -> None:
                           [min(delay, len(hist) - 1)])[0]
         moved_ok = not np.array_equal(before, env.positions[0, 0])
         if moved_ok:
-            exact += int(np.allclose(pred[0:2], hist[-1][0:2]))
+            # bit for bit: the cell encoded as the environment encodes it
+            exact += int(np.array_equal(pred[0:2], hist[-1][0:2]))
         # the window never claims a robot or obstacle at the robot's own cell
         assert pred[8 + 24] == 0.0
     assert exact > 10
+
+
+def test_a_row_is_corrected_as_it_would_be_alone() -> None:
+    """A batch (in process) and a lone robot (the actor) decide on the same inputs: a row
+    nothing moves comes back bit for bit, whatever the other rows do (a rewritten coordinate
+    one bit off flips a policy's argmax some steps later)."""
+    rng = np.random.default_rng(5)
+    o = rng.random((3, 57)).astype(np.float32)
+    o[:, 8:] = rng.integers(0, 2, (3, 49)) * 1.0
+    o[:, 8 + 24] = 0.0
+    o[:, 0:2] = np.array([[7, 9], [3, 4], [30, 1]], dtype=np.int64) * np.float32(1 / 31)
+    o[2, 0:2] += np.float32(1e-7)  # a coordinate a bit off the grid's encoding stays as it was
+    batch, rows = DeadReckoner(3, grid_size=32), [DeadReckoner(1, grid_size=32) for _ in range(3)]
+    for a in ([4, 0, 0], [1, 0, 0]):
+        batch.record(a)
+        for r, ai in zip(rows, a, strict=True):
+            r.record([ai])
+    got = batch.correct(o, [2, 2, 2])
+    for i, r in enumerate(rows):
+        assert np.array_equal(got[i], r.correct(o[i:i + 1], [2])[0])
+    assert np.array_equal(got[1:], o[1:])  # 'stay' moved nothing: untouched
+    if not np.array_equal(got[0], o[0]):  # moved: the environment's encoding of the new cell
+        cell = np.rint(got[0, 0:2] * 31).astype(np.int64)
+        assert np.array_equal(got[0, 0:2], (cell * np.float32(1 / 31)).astype(np.float32))
 
 
 def test_moves_into_a_seen_obstacle_are_predicted_refused() -> None:

@@ -90,7 +90,13 @@ class DeadReckoner:
         moved = np.any(off != 0, axis=1)
         if not moved.any():
             return o
-        o[:, 0:2] = ((cell + off) * inv).astype(np.float32)
+        # Only the moved rows, encoded as the environment encodes a cell (an int64 cell times the
+        # float32 1 / (size - 1)): a row rewritten with other rounding would differ in the last
+        # bit, enough to flip a policy's argmax some steps later, so a batch and a lone robot
+        # (the actor) would decide differently on the same history.
+        pos = np.empty((self.rows, 2), dtype=np.float32)
+        np.multiply(cell + off, np.float32(inv), out=pos)
+        o[moved, 0:2] = pos[moved]
         # shift the window: the cell at (x, y) now shows what was seen at (x + dx, y + dy)
         ys, xs = np.meshgrid(np.arange(WINDOW), np.arange(WINDOW), indexing="ij")
         sy = ys[None] + off[:, 1, None, None]

@@ -111,3 +111,31 @@ def test_actor_core_skips_ahead_only_in_realtime() -> None:
     offer(fresh, blob(1))
     fresh.on_obs(1, 0, 0, 4, obs)
     assert core.hidden is not None and np.array_equal(core.hidden, fresh.hidden)
+
+
+def test_realtime_under_latency_adds_the_actions_not_yet_applied_to_the_observed_step() -> None:
+    """Realtime with one step of observation latency: an observation shows the world of the step
+    before, which holds each robot's actions applied before that step; ``obs_age`` counts from
+    there (1 when every answer ran at its own tick, 2 for a robot whose answer is still pending)."""
+    from sdhn_sim.envs.conditions import Conditions
+
+    sim = realtime(max_steps=20, conditions=Conditions(latency=1))
+    f = sim.reset()
+    n = sim.num_robots
+    assert f.obs_age is not None and not f.obs_age.any()
+    for step in range(2):
+        for i in range(n):
+            assert sim.submit(i, f.episode, step, 1, version=1) is None
+        f, _ = sim.advance()
+        # the world of step - 1 holds the answers up to step - 2: the last one is unseen
+        assert f.obs_age is not None and f.obs_age.tolist() == [1] * n, step
+    for i in range(1, n):  # robot 0's answer to step 2 misses the tick
+        assert sim.submit(i, f.episode, 2, 1, version=1) is None
+    f, _ = sim.advance()
+    assert f.obs_age is not None and f.obs_age.tolist() == [1] * n  # the world of step 2
+    assert sim.submit(0, f.episode, 2, 1, version=1) is None  # applied late, at tick 3
+    for i in range(1, n):
+        assert sim.submit(i, f.episode, 3, 1, version=1) is None
+    f, _ = sim.advance()
+    # the world of step 3 lacks robot 0's answer to step 2 (applied at tick 3): two unseen
+    assert f.obs_age is not None and f.obs_age.tolist() == [2] + [1] * (n - 1)

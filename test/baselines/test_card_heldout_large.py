@@ -56,6 +56,14 @@ def test_card_gains_the_large_set_and_keeps_the_rest(tmp_path: Path) -> None:
     assert "greedy, stall breaking 2,10,2" in entry["modes"]
     assert '`stall_rule: "2,10,2"`' in (model / "card.md").read_text()
     assert card.main([str(model), "--break-stalls", "2,10", "--no-planner"]) == 2
+    # dead reckoning in the recommended mode: the launcher and deploy.json take it from here
+    assert card.main([str(model), "--dead-reckoning", "--no-planner"]) == 0
+    entry = json.loads((model / "card.json").read_text())["heldout_large"]
+    assert entry["deploy"] == {"greedy": True, "temperature": 1.0, "break_stalls": False,
+                               "dead_reckoning": True}
+    assert "`dead_reckoning: true`" in (model / "card.md").read_text()
+    contract = json.loads((model / "deploy.json").read_text())
+    assert contract["mode"]["dead_reckoning"] and "dead_reckoning" in contract
 
 
 def test_card_of_other_weights_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]

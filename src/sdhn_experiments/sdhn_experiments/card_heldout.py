@@ -47,9 +47,11 @@ DEPLOY_MODES = ("greedy", "sampled", "break-stalls")
 
 
 def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
-             seed: int = 0, *, stall_rule: StallRule | None = None, deploy: str | None = None
-             ) -> dict[str, Any]:
-    """card.json's ``heldout_large`` entry for the model directory ``model``."""
+             seed: int = 0, *, stall_rule: StallRule | None = None, deploy: str | None = None,
+             dead_reckoning: bool = False) -> dict[str, Any]:
+    """card.json's ``heldout_large`` entry for the model directory ``model``. ``dead_reckoning``:
+    the recommended mode includes it (the launcher then deploys it); it changes nothing on the
+    current observations of this set, so the figures hold for the mode with it."""
     card = json.loads((model / "card.json").read_text())
     task = str(card["env"])
     if task not in MAIF_CONFIGS:
@@ -91,7 +93,8 @@ def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
                        "break_stalls": deploy == "break-stalls",
                        **({"stall_rule": stall_rule.text()}
                           if deploy == "break-stalls" and stall_rule is not None
-                          and stall_rule != StallRule() else {})}}
+                          and stall_rule != StallRule() else {}),
+                       **({"dead_reckoning": True} if dead_reckoning else {})}}
 
 
 def section(entry: dict[str, Any]) -> str:
@@ -109,6 +112,9 @@ def section(entry: dict[str, Any]) -> str:
     rule = f", `stall_rule: \"{d['stall_rule']}\"`" if d.get("stall_rule") else ""
     how = (f"`greedy: true`, `break_stalls: true`{rule}" if d.get("break_stalls") else "greedy"
            if d["greedy"] else f"`greedy: false`, `temperature: {d['temperature']:g}`")
+    if d.get("dead_reckoning"):
+        how += (", with dead reckoning (`dead_reckoning: true`; it changes nothing on the current "
+                "observations measured here, docs/deploying-under-conditions.md)")
     return f"""{TITLE}
 
 {entry['instances']:,} instances on {entry['maps']} maps no training run sees (set checksum
@@ -153,6 +159,9 @@ def main(argv: list[str] | None = None) -> int:
                         f"{StallRule().text()}; scripts/tune_stall_rule.py chooses one)")
     p.add_argument("--deploy", choices=DEPLOY_MODES, default=None,
                    help="the mode the card recommends (default: the last evaluated)")
+    p.add_argument("--dead-reckoning", action="store_true",
+                   help="the recommended mode includes dead reckoning (deployed by the launcher; "
+                        "a no-op on this set's current observations)")
     p.add_argument("--no-planner", action="store_true", help="skip the planner's makespans")
     p.add_argument("--planner-cache", type=Path, default=default_planner_cache())
     args = p.parse_args(argv)
@@ -170,7 +179,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             entry = evaluate(model, args.temperature,
                              None if args.no_planner else args.planner_cache,
-                             stall_rule=rule, deploy=args.deploy)
+                             stall_rule=rule, deploy=args.deploy,
+                             dead_reckoning=args.dead_reckoning)
         except (OSError, ValueError, KeyError) as e:
             print(f"card_heldout_large: {e}", file=sys.stderr)
             return 2

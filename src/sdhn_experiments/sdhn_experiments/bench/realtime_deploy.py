@@ -137,7 +137,11 @@ def run_one(config: str, rate: float | None, args: argparse.Namespace, reckon: b
     cmd = [sys.executable, "-m", "sdhn_bringup", config, *(a for s in sets for a in ("--set", s))]
     load0 = os.getloadavg()[0]
     t0 = time.monotonic()
-    code = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, check=False).returncode
+    out.mkdir(parents=True, exist_ok=True)
+    # the launcher's own lines (status, exit codes) beside the run: why a run exited non-zero
+    with (out / f"{name}.launcher.log").open("w") as log:
+        code = subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+                              check=False).returncode
     return run_dir, time.monotonic() - t0, (load0, os.getloadavg()[0]), code
 
 

@@ -3,7 +3,7 @@ the fine-tuned actors of each arm and the policy they started from, in that poli
 under the goals' conditions of issue 53 (logic in sdhn_experiments.conditions_pilot).
 
     nice -n 10 .venv/bin/python scripts/conditions_pilot_eval.py runs/dr-pilot \\
-        --mark 204800 --instances 100 --out docs/results/conditions/training-pilot.json
+        --mark 81920 --instances 50 --out docs/results/conditions/training-pilot-step81920.json
 
 Policies: ``--baseline`` (a model directory: its actor and card mode) and, for every run
 directory ``<task>__<arm>__s<seed>`` of the log directory, its actor at ``--mark``
@@ -17,7 +17,6 @@ import hashlib
 import json
 import re
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +30,7 @@ from sdhn_experiments.conditions_pilot import PLAN, compare_arms, evaluate_polic
 from sdhn_experiments.heldout_eval import Policy, set_checksum, set_instances, write_json
 from sdhn_policy.actor_runtime import ActorRuntime
 
+RECORD_COLUMNS = ("instance", "map", "success", "makespan", "team_success", "failed", "length")
 RUN = re.compile(r"^(?P<task>[a-z0-9-]+)__(?P<arm>[a-z0-9_]+)__s(?P<seed>\d+)$")
 
 
@@ -69,7 +69,6 @@ def main(argv: list[str] | None = None) -> int:
     arms = {k: arms[k] for k in sorted(arms, key=lambda a: (a != "control", a))}
     if args.only:
         files = {args.only: files[args.only]}
-    t0, c0 = time.monotonic(), time.process_time()
     rows: dict[str, dict[str, list[ConditionResult]]] = {}
     for name, path in files.items():
         key = {"actor_sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
@@ -100,10 +99,9 @@ def main(argv: list[str] | None = None) -> int:
         "plan": [{"label": lab, "conditions": c.to_dict(), "dead_reckoning": dr}
                  for lab, c, dr in PLAN],
         "table": table,
-        "eval_cpu_s": round(time.process_time() - c0, 1),
-        "eval_wall_s": round(time.monotonic() - t0, 1),
-        "records": {name: {lab: records_json(r) for lab, r in per.items()}
-                    for name, per in rows.items()},
+        "records_columns": list(RECORD_COLUMNS),  # one row per instance, these columns
+        "records": {name: {lab: [[rec[c] for c in RECORD_COLUMNS] for rec in records_json(r)]
+                           for lab, r in per.items()} for name, per in rows.items()},
     }
     write_json(args.out, out)
     text = markdown(table, list(arms), "baseline")

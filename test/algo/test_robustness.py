@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import lzma
 import shutil
 import subprocess
 from dataclasses import replace
@@ -181,8 +182,10 @@ def test_the_claim_verdict_follows_the_loss_under_conditions(tmp_path: Path) -> 
                                   for s in (4, 5, 6)], "success_rate")
     assert same["verdict"] == "inconclusive"
     assert claim_verdict(robust[:2], fragile, "success_rate")["verdict"] == "no verdict"
-    for r in robust + fragile:
+    for r in robust:
         (tmp_path / f"{r['key']}.json").write_text(json.dumps(r))
+    for r in fragile:  # as committed: compressed
+        (tmp_path / f"{r['key']}.json.xz").write_bytes(lzma.compress(json.dumps(r).encode()))
     js = write_report(tmp_path, tmp_path / "out")
     m = js["maif-10"]["methods"]["sdhn"]["settings"]["latency/4"]
     assert m["success_rate"]["point"] == pytest.approx(0.7) and m["seeds_n"] == 3

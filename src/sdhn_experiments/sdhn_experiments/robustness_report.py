@@ -26,6 +26,7 @@ Writes to the output directory:
 from __future__ import annotations
 
 import json
+import lzma
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -86,9 +87,11 @@ def boot_poi(x: npt.ArrayLike, y: npt.ArrayLike, reps: int = REPS, seed: int = 0
 
 
 def load_results(results: Path) -> list[dict[str, Any]]:
+    """Every per-actor result in the directory (``*.json``, or ``*.json.xz`` as committed)."""
     out = []
-    for f in sorted(results.glob("*.json")):
-        d = json.loads(f.read_text())
+    for f in sorted([*results.glob("*.json"), *results.glob("*.json.xz")]):
+        raw = lzma.decompress(f.read_bytes()) if f.suffix == ".xz" else f.read_bytes()
+        d = json.loads(raw)
         if d.get("format") == "sdhn-robustness/1":
             out.append(d)
     return out
@@ -178,14 +181,25 @@ def claim_verdict(sdhn: list[dict[str, Any]], other: list[dict[str, Any]], metri
     verdict = ("reproduced" if loss.low > 0.5 else "contradicted" if loss.high < 0.5
                else "inconclusive")
     ls, lo = condition_losses(sdhn, metric).mean(), condition_losses(other, metric).mean()
+    names = [st["condition"] for st in sdhn[0]["settings"] if st["level"] > 0]
+    per: dict[str, Any] = {}
+    for c in dict.fromkeys(names):
+        cols = [i for i, n in enumerate(names) if n == c]
+        per[c] = boot_poi(condition_losses(sdhn, metric)[:, cols],
+                          condition_losses(other, metric)[:, cols]).to_json()
     return {"verdict": verdict, "seeds": [len(sdhn), len(other)],
+            "p_smaller_loss_per_condition": per,
             "settings": int(condition_losses(sdhn, metric).shape[1]),
             "p_smaller_loss": loss.to_json(), "p_better_under_conditions": under.to_json(),
             "mean_loss_sdhn": float(ls), "mean_loss_other": float(lo)}
 
 
-def _fmt(e: ps.Estimate | None, digits: int) -> str:
-    return "—" if e is None else e.fmt(digits)
+def _fmt(est: tuple[ps.Estimate | None, int], digits: int) -> str:
+    """The mean [95 % CI]; one seed has no interval over seeds (its point only)."""
+    e, n = est
+    if e is None:
+        return "—"
+    return f"{e.point:.{digits}f}" if n < 2 else e.fmt(digits)
 
 
 def task_tables(task: str, methods: dict[str, list[dict[str, Any]]]) -> tuple[list[str],
@@ -231,14 +245,14 @@ def task_tables(task: str, methods: dict[str, list[dict[str, Any]]]) -> tuple[li
                   f"| method | {head} |", "|---|" + "---|" * len(levels)]
         for m in names:
             lines.append(f"| {label(m)} | " + " | ".join(
-                _fmt(est[m][key(lvl)][0], digits) for lvl in levels) + " |")
+                _fmt(est[m][key(lvl)], digits) for lvl in levels) + " |")
         lines.append("")
         if ratio_est:
             lines += [f"### {c}: makespan over the planner's (completed instances)", "",
                       f"| method | {head} |", "|---|" + "---|" * len(levels)]
             for m in names:
                 lines.append(f"| {label(m)} | " + " | ".join(
-                    _fmt(ratio_est[m][key(lvl)][0], 2) for lvl in levels) + " |")
+                    _fmt(ratio_est[m][key(lvl)], 2) for lvl in levels) + " |")
             lines.append("")
         refs = [(m, reference(m, set(names))) for m in names]
         pairs = [(m, r) for m, r in refs if r is not None]
@@ -397,8 +411,19 @@ def write_report(results: Path, outdir: Path) -> dict[str, Any]:
                           f"conditions) = {un.fmt(2)}: **{c['verdict']}**.", ""]
     lines += shipped_table(res)
     if cpu:
-        lines += [f"Compute: {len(res)} actor results, {sum(cpu) / 3600:.2f} CPU-hours in all "
-                  f"({np.mean(cpu):.0f} CPU-s per actor on average).", ""]
+        lines += ["## Compute", "", "| task | actors | settings each | instances (episodes) | "
+                  "CPU-s per actor-setting | CPU-s per actor | load (1 min) |",
+                  "|---|---|---|---|---|---|---|"]
+        for task in sorted({r["task"] for r in res}):
+            rs = [r for r in res if r["task"] == task]
+            per = [r["cpu_s"] / len(r["settings"]) for r in rs]
+            loads = [r.get("load_1min", 0.0) for r in rs]
+            lines.append(f"| {task} | {len(rs)} | {len(rs[0]['settings'])} | "
+                         f"{rs[0].get('instances', rs[0].get('episodes'))} | "
+                         f"{np.mean(per):.2f} | {np.mean([r['cpu_s'] for r in rs]):.0f} | "
+                         f"{min(loads):.0f}-{max(loads):.0f} |")
+        lines += ["", f"In all {sum(cpu) / 3600:.2f} CPU-hours for {len(res)} actor results.",
+                  ""]
     (outdir / "robustness.md").write_text("\n".join(lines))
     write_json(outdir / "robustness.json", js)
     write_json(outdir / "marl_eval.json", marl_eval(res))

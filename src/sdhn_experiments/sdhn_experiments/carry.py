@@ -41,8 +41,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
+from sdhn_base.yaml_io import load_yaml
 from sdhn_experiments.experiments import DONE, SPEC, ExperimentError, check_name
 from sdhn_train.checkpoint import checkpoint_step, latest_checkpoint
 from sdhn_train.run_files import PACKED_SUFFIX, packed
@@ -146,8 +145,8 @@ def _budgets_judged(run: Path) -> bool:
     actor may stay behind."""
     if not (run / MARKED_ACTORS_DIR).is_dir():
         return True
-    cfg = yaml.safe_load((run / "config.yaml").read_text()) if (run / "config.yaml").is_file() \
-        else None
+    cfg = load_yaml(run / "config.yaml", what="run config") \
+        if (run / "config.yaml").is_file() else None
     total = (cfg or {}).get("train", {}).get("total_steps")
     return total is not None and (run / MARKED_ACTORS_DIR /
                                   f"step_{int(total)}.deployed.json").is_file()

@@ -26,7 +26,7 @@ NODES: dict[tuple[str, str], list[str]] = {
                                 "-p", "resume:=true"],
 }
 # Executables that are command-line tools rather than nodes.
-TOOLS = {("sdhn_sim", "replay"), ("sdhn_train", "train")}
+TOOLS = {("sdhn_sim", "replay"), ("sdhn_policy", "export_onnx"), ("sdhn_train", "train")}
 
 
 def installed_executables() -> set[tuple[str, str]]:

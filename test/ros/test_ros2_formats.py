@@ -29,7 +29,7 @@ def observation() -> RobotObservation:
 def test_echo_yaml_follows_ros2cli_rules() -> None:
     full = yaml.safe_load(to_yaml(observation(), truncate=None))
     assert list(full) == ["header", "episode", "step", "robot_id", "num_robots", "obs", "reward",
-                          "terminated", "truncated"]
+                          "terminated", "truncated", "obs_age"]
     assert full["header"] == {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": "map"}
     assert full["obs"] == list(range(57)) and full["reward"] == -0.25
     cut = yaml.safe_load(to_yaml(observation(), truncate=3))

@@ -69,11 +69,11 @@ def test_the_launcher_runs_a_shipped_graph_from_another_directory(tmp_path: Path
 
 
 @pytest.mark.parametrize(("sets", "says"), [
-    ([], "greedy, with stall breaking (rule 2,10,2)"),
-    (["break_stalls=false", "stall_rule="], "greedy"),
-    (["break_stalls=false", "stall_rule=", "greedy=false", "temperature=0.5"],
-     "sampled at temperature 0.5"),
-    (["dead_reckoning=true"], "greedy, with stall breaking (rule 2,10,2), with dead reckoning"),
+    ([], "greedy, with stall breaking (rule 2,10,2), with dead reckoning"),  # the card's mode
+    (["dead_reckoning=false"], "greedy, with stall breaking (rule 2,10,2)"),
+    (["break_stalls=false", "stall_rule=", "dead_reckoning=false"], "greedy"),
+    (["break_stalls=false", "stall_rule=", "greedy=false", "temperature=0.5",
+      "dead_reckoning=false"], "sampled at temperature 0.5"),
 ])
 def test_the_demo_graph_is_described_as_it_runs(sets: list[str], says: str) -> None:
     cfg = load_config(REPO / "configs" / "launch" / "deploy-maif10.yaml", sets)

@@ -117,8 +117,8 @@ class SimConfig:
     start_timeout: float = setting(60.0, "seconds to wait for every actor before step 0 (then "
                                          "exit 1)", 0.001, 86400.0)
     max_steps: int = setting(0, "episode step limit; 0 = the environment's default", 0)
-    extra_subscribers: int = setting(0, "other nodes (trainer, recorder) whose state and obs "
-                                        "subscriptions to wait for before step 0", 0)
+    extra_subscribers: int = setting(0, "other nodes (trainer, recorder) whose state, obs and "
+                                        "episode subscriptions to wait for before step 0", 0)
     # setting() returns a dataclasses.field with a default_factory: nothing is shared
     conditions: Conditions = setting(  # noqa: RUF009
         Conditions, "deployment conditions: a YAML/JSON mapping of sdhn_sim.envs.conditions "

@@ -203,8 +203,12 @@ class SimNode(Node):
 
     def all_matched(self) -> bool:
         extra = self.cfg.extra_subscribers
+        # Every endpoint of an extra subscriber (trainer, recorder) matches on its own: its
+        # episode subscription can match after its obs and state ones, and a short run's
+        # summaries published before then would be lost to it.
         return (all(p.get_subscription_count() >= 1 + extra for p in self.obs_pubs)
                 and self.state_pub.get_subscription_count() >= extra
+                and self.episode_pub.get_subscription_count() >= extra
                 and all(s.get_publisher_count() >= 1 for s in self.action_subs))
 
     def on_tick(self) -> None:

@@ -9,13 +9,17 @@ so they run from a source checkout (``scripts/setup.sh`` installs the packages e
 
 from __future__ import annotations
 
+from importlib import resources
 from pathlib import Path
 
 
 def _checkout() -> Path:
     """The source checkout this package is installed from (configs/launch and scripts/ beside
-    src/), else the working directory (a non-editable install run from a checkout)."""
-    for folder in Path(__file__).resolve().parents:
+    src/), else the working directory (a non-editable install run from a checkout). Found from
+    the installed package (importlib.resources), not this module's own path, which moves when
+    the module does."""
+    package = Path(str(resources.files("sdhn_experiments")))
+    for folder in package.resolve().parents:
         if (folder / "configs" / "launch").is_dir() and (folder / "scripts").is_dir():
             return folder
     return Path.cwd()

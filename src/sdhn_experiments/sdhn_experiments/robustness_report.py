@@ -37,7 +37,7 @@ import numpy.typing as npt
 
 from sdhn_experiments import protocol_stats as ps
 from sdhn_experiments.heldout_eval import write_json
-from sdhn_experiments.protocol_report import ABLATIONS, BASELINES, LABELS, MIN_VERDICT_SEEDS
+from sdhn_experiments.protocol_report import ABLATIONS, BASELINES, MIN_VERDICT_SEEDS, label
 
 GENERATOR = "sdhn_generator_1_layer"
 SHR = "sdhn_wo_shr"
@@ -96,15 +96,6 @@ def load_results(results: Path) -> list[dict[str, Any]]:
         if d.get("format") == "sdhn-robustness/1":
             out.append(d)
     return out
-
-
-def label(method: str) -> str:
-    if method in LABELS:
-        return LABELS[method]
-    for base in sorted(LABELS, key=len, reverse=True):
-        if method.startswith(base + "_"):
-            return f"{LABELS[base]} ({method[len(base) + 1:]})"
-    return method
 
 
 def reference(method: str, methods: set[str]) -> str | None:
@@ -183,13 +174,12 @@ def claim_verdict(sdhn: list[dict[str, Any]], other: list[dict[str, Any]], metri
     under = boot_poi(condition_scores(sdhn, metric), condition_scores(other, metric))
     verdict = ("reproduced" if seed.low > 0.5 else "contradicted" if seed.high < 0.5
                else "inconclusive")
-    ls, lo = condition_losses(sdhn, metric).mean(), condition_losses(other, metric).mean()
+    ls, lo = ls_.mean(), lo_.mean()
     names = [st["condition"] for st in sdhn[0]["settings"] if st["level"] > 0]
     per: dict[str, Any] = {}
     for c in dict.fromkeys(names):
         cols = [i for i, n in enumerate(names) if n == c]
-        per[c] = boot_poi(condition_losses(sdhn, metric)[:, cols],
-                          condition_losses(other, metric)[:, cols]).to_json()
+        per[c] = boot_poi(ls_[:, cols], lo_[:, cols]).to_json()
     return {"verdict": verdict, "seeds": [len(sdhn), len(other)],
             "p_smaller_loss_per_condition": per, "p_smaller_loss_seeds": seed.to_json(),
             "mean_loss_per_seed": [ls_.mean(axis=1).tolist(), lo_.mean(axis=1).tolist()],

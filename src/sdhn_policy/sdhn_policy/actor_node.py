@@ -193,6 +193,14 @@ class ActorNode(LifecycleNode):
     def weights_error(self, e: WeightsError) -> str:
         return f"weights_file: {self.params['weights_file']}: {e.reason}; {WEIGHTS_ALLOWED}"
 
+    def destroy_node(self) -> None:
+        # rclpy's LifecycleNode leaves its state machine alive, and the state machine holds the
+        # rcl node: the node was never finalised, so the DDS participant outlived rclpy and was
+        # deleted by Fast DDS's static factory destructor at exit, where it can deadlock with a
+        # departing peer's discovery callback (seen: actors hung past SIGINT + 10 s, SIGKILLed).
+        super().destroy_node()
+        self._state_machine.destroy_when_not_in_use()
+
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         weights_file = self.params["weights_file"]
         try:

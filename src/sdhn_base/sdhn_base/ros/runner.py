@@ -149,5 +149,7 @@ def run_node(
         # Finalise the rmw context now (it deletes the DDS participant once the executor and
         # node let go, at the latest when this frame returns). Left to the process's exit, Fast
         # DDS's static factory destructor disables the participant itself and was seen to spin
-        # there for over 10 s under load, after Python (and this watchdog) had finished.
+        # there for over 10 s under load, after Python (and this watchdog) had finished. That
+        # only happens if a node's rcl node was never finalised (rclpy's LifecycleNode keeps it
+        # through its state machine: ActorNode.destroy_node; test/ros/test_actor_teardown.py).
         context.destroy()

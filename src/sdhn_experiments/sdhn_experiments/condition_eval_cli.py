@@ -1,6 +1,8 @@
-"""Shipped MAIF policies under deployment conditions: success (survivors' success under robot
-failure), makespan and makespan over the ideal world, with 95 % intervals, at several severities
-of each condition (sdhn_sim.envs.conditions; logic in sdhn_experiments.condition_eval).
+"""Shipped policies under deployment conditions: MAIF success (survivors' success under robot
+failure), makespan and makespan over the ideal world, with 95 % intervals; RWARE deliveries per
+episode [95 % interval over episodes] and the latency mechanism's counts; at several severities
+of each condition (sdhn_sim.envs.conditions; logic in sdhn_experiments.condition_eval and
+sdhn_experiments.rware_conditions).
 
     .venv/bin/python scripts/eval_conditions.py models/maif-10-sdhn --instances 100 \\
         --conditions latency lost_actions --out /tmp/cond.json --markdown /tmp/cond.md
@@ -8,9 +10,13 @@ of each condition (sdhn_sim.envs.conditions; logic in sdhn_experiments.condition
         --conditions ideal                          # team-size transfer
     .venv/bin/python scripts/eval_conditions.py models/maif-10-sdhn --modes card \\
         --dead-reckon both --conditions latency     # the deployment rule against the cliff
+    .venv/bin/python scripts/eval_conditions.py models/rware-3-mappo scripted:rware-3 \\
+        --instances 20 --conditions latency --severities 1 2 --dead-reckon both   # RWARE
 
 Each row plays instances 0..K-1 of the large held-out set (K = --instances; maps of 5
-formations), the condition model seeded --seed. Modes: ``card`` (the card's deployment mode),
+formations), the condition model seeded --seed; an RWARE model (or ``scripted:TASK``, the
+decentralised scripted policy) plays K episodes from the robustness suite's seeds (1,000,000 on),
+greedy. Modes: ``card`` (the card's deployment mode),
 ``greedy``; ``--dead-reckon on|off|both`` adds or compares dead reckoning.
 """
 
@@ -76,10 +82,70 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(out) + "\n"
 
 
+def _rware_task(model: Path, task: str | None) -> str | None:
+    """The RWARE task a model plays (``scripted:TASK``, or its card's env), None for MAIF."""
+    import json
+
+    from sdhn_sim.envs.registry import RWARE_TASKS
+
+    if str(model).startswith("scripted:"):
+        return str(model).split(":", 1)[1]
+    card = model / "card.json"
+    env = task or (json.loads(card.read_text())["env"] if card.is_file() else None)
+    return env if env in RWARE_TASKS else None
+
+
+def _rware_main(args: argparse.Namespace, models: list[Path],
+                plan: list[tuple[str, str, Conditions]], reckon: list[bool], alone: bool) -> int:
+    """RWARE rows: deliveries per episode under each condition, with and without the rule."""
+    from sdhn_experiments.rware_conditions import markdown_rows, play_rware, policy_maker
+    from sdhn_policy.deploy_eval import RWARE_EVAL_SEED
+    from sdhn_sim.envs.registry import RWARE_TASKS
+
+    if not alone:
+        print("eval_conditions: RWARE and MAIF models in one call; allowed: one family",
+              file=sys.stderr)
+        return 2
+    maif_only = {"position_noise", "cell_misread"}
+    plan = [p for p in plan if p[0] not in maif_only]
+    rows: list[dict[str, Any]] = []
+    for model in models:
+        task = _rware_task(model, args.task)
+        if task not in RWARE_TASKS:
+            print(f"eval_conditions: {model}: task {task!r}; allowed: {', '.join(RWARE_TASKS)}",
+                  file=sys.stderr)
+            return 2
+        name, make = policy_maker(str(model))
+        for dr in reckon:
+            first = [] if dr and len(reckon) > 1 else [("ideal", "-", Conditions())]
+            for cname, sev, cond in [*first, *plan]:
+                t0 = time.process_time()
+                res = play_rware(make, task, cond, episodes=args.instances, seed=RWARE_EVAL_SEED,
+                                 dead_reckon=dr)
+                s = res.summary()
+                mode = "greedy" + (", dead reckoning" if dr else "")
+                print(f"[cond] {name} on {task} ({mode}) {cname} {sev}: deliveries "
+                      f"{s['deliveries_mean']:.2f} {s['deliveries_ci95']}, {s['rates']}, "
+                      f"{time.process_time() - t0:.1f} CPU-s", flush=True)
+                rows.append({"policy": name, "task": task, "mode": mode, "dead_reckon": dr,
+                             "condition": cname, "severity": sev, "conditions": cond.to_dict(),
+                             "episode_seeds": f"{RWARE_EVAL_SEED}.."
+                                              f"{RWARE_EVAL_SEED + args.instances - 1}",
+                             "summary": s})
+                if args.out:
+                    write_json(args.out, rows)
+    table = markdown_rows(rows)
+    if args.markdown:
+        args.markdown.write_text(table)
+    print(table)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
-    p.add_argument("models", nargs="+", type=Path, help="model directories (card.json, actor)")
-    p.add_argument("--task", help="MAIF task to play (default: the card's; another = transfer)")
+    p.add_argument("models", nargs="+", type=Path,
+                   help="model directories (card.json, actor); RWARE also scripted:TASK")
+    p.add_argument("--task", help="task to play (default: the card's; another = transfer)")
     p.add_argument("--conditions", nargs="+", default=list(SWEEPS),
                    help=f"conditions to sweep, of {['ideal', *SWEEPS]}")
     p.add_argument("--severities", nargs="+", type=float,
@@ -88,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
                                    "(a conditions: block), e.g. '{latency: 1, failures: 1}'")
     p.add_argument("--modes", nargs="+", default=["card"], choices=("card", "greedy"))
     p.add_argument("--dead-reckon", choices=("off", "on", "both"), default="off")
-    p.add_argument("--instances", type=int, default=100)
+    p.add_argument("--instances", type=int, default=100,
+                   help="MAIF instances / RWARE episodes per row")
     p.add_argument("--set", default=DEFAULT_SET)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, help="JSON: every row's summary and per-instance records")
@@ -120,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     plan += extra
     reckon = {"off": [False], "on": [True], "both": [False, True]}[args.dead_reckon]
     rows: list[dict[str, Any]] = []
+    rware = [m for m in args.models if _rware_task(m, args.task)]
+    if rware:
+        return _rware_main(args, rware, plan, reckon, len(rware) == len(args.models))
     for model in args.models:
         card_task = None
         card = model / "card.json"

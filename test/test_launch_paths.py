@@ -109,8 +109,14 @@ def test_dead_reckoning_deploys_as_the_card_says_unless_the_config_chooses(
     assert describe_actions(cfg).endswith("with dead reckoning") is reckons
 
 
-@pytest.mark.parametrize("sets", [["env=rware-tiny-2ag", "weights=models/rware-tiny-2ag-mappo"],
-                                  ["mode=train", "weights="]], ids=["rware", "train"])
-def test_dead_reckoning_outside_a_maif_deployment_is_refused(sets: list[str]) -> None:
+def test_dead_reckoning_outside_a_deployment_is_refused() -> None:
     with pytest.raises(LaunchConfigError, match="dead_reckoning: applies only to deploy mode"):
-        load_config(TINY, [*sets, "dead_reckoning=true", "greedy=true"])
+        load_config(TINY, ["mode=train", "weights=", "dead_reckoning=true", "greedy=true"])
+
+
+def test_an_rware_deployment_takes_dead_reckoning(tmp_path: Path) -> None:
+    cfg = load_config(TINY, ["env=rware-tiny-2ag", "weights=models/rware-tiny-2ag-mappo",
+                             f"run_dir={tmp_path / 'run'}", "dead_reckoning=true"])
+    actors = [v for k, v in node_parameters(cfg).items() if k.endswith("/actor")]
+    assert len(actors) == 2 and all(a["dead_reckoning"] is True for a in actors)
+    assert all(a["env"] == "rware-tiny-2ag" for a in actors)

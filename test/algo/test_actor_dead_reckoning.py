@@ -177,3 +177,54 @@ def test_lockstep_actors_with_dead_reckoning_act_as_the_in_process_batch() -> No
         if result is not None:
             break
     assert sum(c.reckoned for c in cores) > 100  # the rule did move observations
+
+
+def test_lockstep_rware_actors_with_dead_reckoning_act_as_the_in_process_batch() -> None:
+    """The same on RWARE: each actor core gets rware-3's rule (``reckoner_for``), the batch
+    ``RwareDeadReckoner``; the shipped rware-3 policy (robot ids, GRU) under one step of
+    latency chooses the same actions in both, step for step, and the rule moves observations."""
+    from sdhn_policy.dead_reckoning import RwareDeadReckoner, reckoner_for
+    from sdhn_sim.envs import make_env
+    from sdhn_sim.envs.rware_batched import RwareBatchedEnv
+    from sdhn_sim.lockstep import LockstepSim, SimConfig
+
+    rt = ActorRuntime.from_file("models/rware-3-mappo/actor.safetensors")
+    sim = LockstepSim(SimConfig(env="rware-3", seed=11, max_steps=500,
+                                conditions=Conditions(latency=1)))
+    n = sim.num_robots
+    cores = [ActorCore(i, n, True, 11, rt, reckoner=reckoner_for("rware-3")) for i in range(n)]
+    frame = sim.reset()
+    inner = make_env("rware-3", num_envs=1, seed=11, max_steps=500)
+    assert isinstance(inner, RwareBatchedEnv)
+    env = ConditionedEnv(inner, Conditions(latency=1))
+    obs, _ = env.reset()
+    assert np.array_equal(frame.obs, obs[0])  # the same warehouse
+    h, batch = rt.initial_state(n), RwareDeadReckoner(n, inner.layout)
+    for t in range(150):
+        assert np.array_equal(frame.obs_age, env.obs_age[0]), t
+        want, _, h = rt.act(batch.correct(obs[0], env.obs_age[0]), h, greedy=True,
+                            rng=np.random.default_rng(0), robot_id=np.arange(n))
+        batch.record(want)
+        got = []
+        for i, c in enumerate(cores):
+            out = c.on_obs(frame.episode, frame.step, i, n, frame.obs[i],
+                           obs_age=int(frame.obs_age[i]))
+            assert isinstance(out, Decision)
+            got.append(out.action)
+            sim.submit(i, frame.episode, frame.step, out.action, 1)
+        assert got == want.tolist(), t
+        frame, result = sim.advance()
+        obs = env.step(want[None]).obs
+        if result is not None:
+            break
+    assert sum(c.reckoned for c in cores) > 100
+
+
+def test_a_rule_for_another_observation_is_refused(rt: ActorRuntime) -> None:
+    from sdhn_policy.dead_reckoning import reckoner_for
+    from sdhn_policy.weights import IncompatibleWeightsError
+
+    with pytest.raises(IncompatibleWeightsError, match="dead reckoning for this env reads"):
+        ActorCore(0, 4, greedy=True, seed=0, runtime=rt, reckoner=reckoner_for("rware-3"))
+    with pytest.raises(ValueError, match="allowed: one of maif"):
+        reckoner_for("nowhere")

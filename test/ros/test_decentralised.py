@@ -91,7 +91,6 @@ def test_sim_rejects_bad_parameters_before_any_topic(params: dict[str, object], 
     ({"break_stalls": "true", "greedy": "false"}, "break_stalls:"),
     ({"break_stalls": "true", "greedy": "true", "stall_rule": "3,x,3"}, "stall_rule:"),
     ({"dead_reckoning": "true"}, "dead_reckoning:"),  # no env: no grid to reckon on
-    ({"dead_reckoning": "true", "env": "rware-tiny-2ag"}, "dead_reckoning:"),
 ])
 def test_actor_rejects_bad_parameters(params: dict[str, object], field: str) -> None:
     args = actor_cmd(0, N)

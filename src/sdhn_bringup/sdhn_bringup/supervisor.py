@@ -29,8 +29,8 @@ Config file fields (every one optional; see :class:`LaunchConfig`)::
                           a few actions; sdhn_policy.stall_breaker)
     stall_rule: ""        (with break_stalls: CALM,PROGRESS,SAMPLE[,T], the rule the actors
                           run; "" = their default. scripts/tune_stall_rule.py chooses one)
-    dead_reckoning: null  (deploy, MAIF: a robot moves an observation that lags behind its own
-                          actions forward by them, sdhn_policy.dead_reckoning; null = as the
+    dead_reckoning: null  (deploy, MAIF or RWARE: a robot moves an observation that lags behind
+                          its own actions forward by them, sdhn_policy.dead_reckoning; null = as the
                           card beside the weights says, its heldout_large.deploy, false without
                           a card; true / false to choose)
     step_deadline: 1.0    max_steps: 0                         instance: -1
@@ -153,7 +153,7 @@ class LaunchConfig:
     temperature: float = 1.0  # deploy with greedy false: sampling temperature (train mode: 1)
     break_stalls: bool = False  # deploy with greedy true: stall breaking (actor break_stalls)
     stall_rule: str = ""  # with break_stalls: the actors' stall_rule ("" = their default)
-    # deploy, MAIF: actor dead_reckoning; None = as the weights' card.json says (resolve())
+    # deploy, MAIF or RWARE: actor dead_reckoning; None = as the weights' card.json says (resolve())
     dead_reckoning: bool | None = None
     step_deadline: float = 1.0
     clock: str = "lockstep"  # lockstep | realtime (the simulator's clock, sdhn_sim.lockstep)
@@ -286,10 +286,9 @@ def validate(cfg: LaunchConfig) -> None:
             StallRule.parse(cfg.stall_rule)
         except ValueError as e:
             raise LaunchConfigError(f"stall_rule: {e}") from None
-    if cfg.dead_reckoning and (cfg.mode != "deploy" or cfg.env in RWARE_TASKS):
-        raise LaunchConfigError(f"dead_reckoning: applies only to deploy mode on a MAIF env "
-                                f"(it reads MAIF observations); got mode {cfg.mode}, env "
-                                f"{cfg.env}")
+    if cfg.dead_reckoning and cfg.mode != "deploy":
+        raise LaunchConfigError(f"dead_reckoning: applies only to deploy mode; got mode "
+                                f"{cfg.mode}")
     if cfg.clock not in CLOCKS:
         raise LaunchConfigError(f"clock: got {cfg.clock!r}; allowed: {', '.join(CLOCKS)}")
     if not (isinstance(cfg.rate_hz, int | float) and 0 < cfg.rate_hz <= 1000):
@@ -370,11 +369,11 @@ def resolve(cfg: LaunchConfig) -> LaunchConfig:
 
 def card_dead_reckoning(weights: Path | None, env: str) -> bool:
     """Whether the card.json beside deploy weights names dead reckoning in its deployment mode
-    (a MAIF env only; no card, or a card it cannot read: False, the actors' default)."""
+    (no card, or a card it cannot read: False, the actors' default)."""
     from sdhn_policy.deploy_contract import card_dead_reckoning as says
 
     card = weights.parent / "card.json" if weights is not None else None
-    if card is None or env in RWARE_TASKS or not card.is_file():
+    if card is None or not card.is_file():
         return False
     try:
         return says(json.loads(card.read_text()))

@@ -91,7 +91,8 @@ PARAMETERS = {
     "realtime": (False, boolean("the simulator runs clock realtime: act on the newest "
                                 "observation (queue depth 1) and take a later step than the next "
                                 "one, the skipped steps counted")),
-    "dead_reckoning": (False, boolean("MAIF, needs env: move an observation that lags behind "
+    "dead_reckoning": (False, boolean("MAIF or RWARE, needs env: move an observation that "
+                                      "lags behind "
                                       "this robot's actions (RobotObservation.obs_age) forward "
                                       "by the actions it sent since (sdhn_policy.dead_reckoning);"
                                       " changes nothing on a current one")),
@@ -132,14 +133,15 @@ class ActorNode(LifecycleNode):
         if p["env"] and self.target is None:
             raise ConfigError(f"env: unknown {p['env']!r}; allowed: '' or one of "
                               f"{', '.join(env_names())}")
-        self.reckon_grid = 0  # dead reckoning: the MAIF grid's size (0 = off)
+        self.reckon = False  # dead reckoning: each core gets the env's rule
         if p["dead_reckoning"]:
-            from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
-            if p["env"] not in MAIF_CONFIGS:
-                raise ConfigError(f"dead_reckoning: reads MAIF observations and needs env to "
-                                  f"name the grid; got env {p['env']!r}; allowed: one of "
-                                  f"{', '.join(MAIF_CONFIGS)}")
-            self.reckon_grid = MAIF_CONFIGS[p["env"]].size
+            from sdhn_policy.dead_reckoning import reckoner_for
+            try:
+                reckoner_for(p["env"])
+            except ValueError as e:
+                raise ConfigError(f"dead_reckoning: needs env to name the grid or warehouse; "
+                                  f"{e}") from None
+            self.reckon = True
         self.params: dict[str, Any] = p
         try:
             self.runtime_cls = runtime_class(p["backend"])
@@ -183,12 +185,14 @@ class ActorNode(LifecycleNode):
 
     def load_core(self) -> ActorCore:
         """The policy state machine with ``weights_file`` loaded (WeightsError if it is bad)."""
+        from sdhn_policy.dead_reckoning import reckoner_for
+
         p, weights_file = self.params, self.params["weights_file"]
         runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
         return ActorCore(self.robot_id, p["num_robots"], p["greedy"], p["seed"], runtime,
                          runtime_cls=self.runtime_cls, temperature=p["temperature"],
                          stall_rule=self.stall_rule, skip_ahead=p["realtime"],
-                         dead_reckon_grid=self.reckon_grid)
+                         reckoner=reckoner_for(p["env"]) if self.reckon else None)
 
     def weights_error(self, e: WeightsError) -> str:
         return f"weights_file: {self.params['weights_file']}: {e.reason}; {WEIGHTS_ALLOWED}"
@@ -365,7 +369,7 @@ class ActorNode(LifecycleNode):
         }
         if self.params["realtime"]:
             values["skipped_steps"] = self.core.skipped if self.core is not None else 0
-        if self.reckon_grid:  # observations moved forward by this robot's unseen actions
+        if self.reckon:  # observations moved forward by this robot's unseen actions
             values["dead_reckoned"] = self.core.reckoned if self.core is not None else 0
         values |= drop_values(self.drops, self._drops_window.new(self.drops))
         waiting = self.phase == "active" and self.obs_sub is None

@@ -100,8 +100,10 @@ class ActionHistory:
         return self._sent[:, self.horizon - back]
 
 
-class _Reckoner:
+class Reckoner:
     """What both rules share: the action history, and the rows and horizon it keeps."""
+
+    obs_size: int  # the observations it reads
 
     def __init__(self, rows: int, horizon: int) -> None:
         self.history = ActionHistory(rows, horizon)
@@ -118,7 +120,7 @@ class _Reckoner:
         raise NotImplementedError
 
 
-class DeadReckoner(_Reckoner):
+class DeadReckoner(Reckoner):
     """MAIF: the correction of stale observations by the moves sent since."""
 
     def __init__(self, rows: int, grid_size: int, horizon: int = HORIZON) -> None:
@@ -126,6 +128,7 @@ class DeadReckoner(_Reckoner):
             raise ValueError(f"dead reckoning grid_size: got {grid_size}; allowed: >= 2")
         super().__init__(rows, horizon)
         self.grid_size = grid_size
+        self.obs_size = OBS_SIZE
 
     def correct(self, obs: npt.ArrayLike, age: npt.ArrayLike) -> npt.NDArray[np.float32]:
         """Observations [rows, 57] received ``age`` [rows] steps old -> predicted current ones."""
@@ -184,7 +187,7 @@ RWARE_CELL = 7  # per window cell: robot, its heading one-hot, shelf, requested 
 _EMPTY_CELL = np.array([0, 1, 0, 0, 0, 0, 0], dtype=np.float32)  # rware's empty/outside cell
 
 
-class RwareDeadReckoner(_Reckoner):
+class RwareDeadReckoner(Reckoner):
     """RWARE: the robot's own cell, heading and load (and the shelf it carries) predicted from
     the actions sent since the observed step, the observation redrawn around it (see the module
     docstring for what it knows and what it assumes)."""
@@ -305,3 +308,20 @@ class RwareDeadReckoner(_Reckoner):
         cells[ri, wy, wx] = c
         out[:, RWARE_SELF:] = cells.reshape(n, -1)
         return out
+
+
+def reckoner_for(env: str, rows: int = 1, horizon: int = HORIZON) -> Reckoner:
+    """The rule for a named task (a MAIF grid or an RWARE warehouse); ValueError naming the
+    tasks allowed for any other name."""
+    from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+    from sdhn_sim.envs.registry import RWARE_TASKS, make_env
+    from sdhn_sim.envs.rware_batched import RwareBatchedEnv
+
+    if env in MAIF_CONFIGS:
+        return DeadReckoner(rows, MAIF_CONFIGS[env].size, horizon)
+    if env in RWARE_TASKS:
+        w = make_env(env, num_envs=1)
+        assert isinstance(w, RwareBatchedEnv)
+        return RwareDeadReckoner(rows, w.layout, w.sensor_range, horizon)
+    raise ValueError(f"dead reckoning: env {env!r} unknown; allowed: one of "
+                     f"{', '.join([*MAIF_CONFIGS, *RWARE_TASKS])}")

@@ -7,14 +7,28 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sdhn_experiments import condition_eval_cli, condition_figures
-from sdhn_experiments.condition_eval import Mode, card_mode, evaluate_under, summarise_under
+from sdhn_experiments.condition_eval import (
+    ConditionResult,
+    Mode,
+    PlannerError,
+    card_mode,
+    evaluate_planner_under,
+    evaluate_under,
+    relaxed_bound_under,
+    summarise_under,
+)
+from sdhn_experiments.heldout_eval import planner_makespans
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.deploy_eval import instance_env, run_actor
 from sdhn_policy.stall_breaker import StallRule
+from sdhn_sim.envs import make_env
 from sdhn_sim.envs.conditions import Conditions
+from sdhn_sim.envs.maif import MaifEnv
+from sdhn_sim.envs.maif_scripted import lower_bound
 
 ACTOR = "models/maif-tiny-sdhn/actor.safetensors"
 
@@ -74,3 +88,68 @@ def test_the_scripts_sweep_a_condition_and_draw_the_figure(tmp_path: Path) -> No
         [str(out), "--figure", str(fig), "--markdown", str(md)]) == 0
     assert fig.stat().st_size > 1000 and md.read_text().count("| maif-tiny-sdhn |") == 2
     assert ev.main(["models/maif-tiny-sdhn", "--block", "{latency: -1}"]) == 2
+
+
+# The centralised planner under the same conditions: the best-case reference of a goal.
+
+def _makespans(recs: list[ConditionResult]) -> list[int | None]:
+    return [r.makespan for r in recs]
+
+
+def test_the_planner_at_severity_zero_is_its_ideal_run() -> None:
+    kw = {"instances": 10, "which": "heldout"}
+    want = planner_makespans("maif-tiny", "heldout", None, instances=10)
+    assert _makespans(evaluate_planner_under("maif-tiny", Conditions(), **kw)) == want
+    for zero in (Conditions(lost_actions=0.0), Conditions(slow_fraction=0.5, slow_rate=1.0)):
+        assert _makespans(evaluate_planner_under("maif-tiny", zero, **kw)) == want
+    # knowing its own moves, a planner one step behind follows its plan to the step
+    late = evaluate_planner_under("maif-tiny", Conditions(latency=1), dead_reckon=True, **kw)
+    assert _makespans(late) == want
+
+
+@pytest.mark.parametrize("p", [0.05, 0.2])
+def test_the_planner_losing_actions_is_never_faster_than_ideal(p: float) -> None:
+    kw = {"instances": 20, "which": "heldout"}
+    ideal = evaluate_planner_under("maif-tiny", Conditions(), **kw)
+    lossy = Conditions(lost_actions=p)
+    lost = evaluate_planner_under("maif-tiny", lossy, **kw)
+    bound = relaxed_bound_under("maif-tiny", lossy, **kw)
+    assert all(r.success for r in lost)
+    pairs = [(r.makespan, i.makespan, b.makespan) for r, i, b in zip(lost, ideal, bound,
+                                                                    strict=True)]
+    assert all(m >= mi and m >= mb for m, mi, mb in pairs)  # type: ignore[operator]
+    assert sum(m > mi for m, mi, _ in pairs) >= 5  # type: ignore[operator]
+    assert summarise_under(lost, ideal, 10)["makespan_over_ideal"] > 1.0
+
+
+def test_the_relaxed_bound_is_the_longest_shortest_path_in_the_ideal_world() -> None:
+    env = make_env("maif-tiny", num_envs=10, seed=0, instance_order="round_robin",
+                   instance_ids=list(range(10)), instance_set="heldout")
+    assert isinstance(env, MaifEnv)
+    env.reset(seed=0)
+    got = relaxed_bound_under("maif-tiny", Conditions(), instances=10, which="heldout")
+    assert np.mean(_makespans(got)) == lower_bound(env)
+    slow = relaxed_bound_under("maif-tiny", Conditions(slow_fraction=0.5, slow_rate=0.5),
+                               instances=10, which="heldout")
+    assert all(s.makespan > g.makespan for s, g in zip(slow, got, strict=True))  # type: ignore
+    with pytest.raises(PlannerError, match="relaxed bound"):
+        relaxed_bound_under("maif-tiny", Conditions(latency=1), instances=2, which="heldout")
+
+
+def test_the_cli_plays_the_planner_beside_the_relaxed_bound(tmp_path: Path) -> None:
+    out = tmp_path / "planner.json"
+    ev = condition_eval_cli
+    assert ev.main(["--planner", "--task", "maif-tiny", "--instances", "10", "--set",
+                    "heldout", "--conditions", "lost_actions", "latency", "--severities",
+                    "1", "--dead-reckon", "both", "--out", str(out)]) == 2  # p = 1: invalid
+    assert ev.main(["--planner", "--task", "maif-tiny", "--instances", "10", "--set",
+                    "heldout", "--conditions", "slow_half", "--severities", "0.5",
+                    "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [(r["policy"], r["condition"]) for r in rows] == [
+        ("planner", "ideal"), ("relaxed bound", "ideal"), ("planner", "slow_half"),
+        ("relaxed bound", "slow_half")]
+    assert rows[2]["summary"]["makespan_over_ideal"] > 1.5
+    assert ev.main(["--planner", "--task", "maif-tiny", "--set", "heldout",
+                    "--conditions", "position_noise"]) == 2
+    assert ev.main(["--conditions", "latency"]) == 2  # neither a model nor --planner

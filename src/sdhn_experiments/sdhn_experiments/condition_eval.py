@@ -16,6 +16,21 @@ policy's makespan in the ideal world, over the instances both complete (paired, 
 is not charged for the instances it fails), mean with a 95 % bootstrap interval over instances.
 The success interval bootstraps over maps (``heldout_eval``: formations of one map correlate).
 
+The centralised reference (``evaluate_planner_under``): the scripted planner the makespan ratios
+of the protocol are taken against (``sdhn_sim.envs.maif_scripted.PlannerPolicy``: it knows the
+map, every start and goal, and replans everyone from the true state whenever the world deviates
+from its plan), played under the same condition model, seeds and instances. Lost actions and
+slow robots reach it as they reach a policy (the world executes what the conditions let
+through); under observation latency it acts on the state as the robots' observations saw it
+(each robot where its observation, ``obs_age`` steps old, put it), optionally moved forward by
+the moves it sent since (its own dead reckoning). It is the best case a policy could hope for
+under a condition by this measure, not an optimum: it does not know which actions will be lost
+or which robots are slow, and prioritized planning is not optimal. Beside it, the **relaxed
+bound** (``relaxed_bound_under``): each robot alone on its shortest path, moving on every step
+the conditions let its action through (the same draws); the team's time is its slowest robot's.
+No policy completes an instance under those draws sooner, so its ratio to its ideal (the longest
+shortest path) is the delay the condition itself imposes on the critical path.
+
 Deployment modes (``Mode``): greedy, greedy with stall breaking (``StallRule``), sampled at a
 temperature, each optionally with dead reckoning (``sdhn_policy.dead_reckoning``: the robot moves
 its stale observation forward by the actions it sent since).
@@ -24,19 +39,21 @@ its stale observation forward by the actions it sent since).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy import stats
 
 from sdhn_experiments.heldout_eval import Policy, map_bootstrap_interval, set_instances
 from sdhn_policy.actor_runtime import check_temperature
 from sdhn_policy.dead_reckoning import DeadReckoner
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
-from sdhn_sim.envs.conditions import ConditionedEnv, Conditions
-from sdhn_sim.envs.maif import MaifEnv
+from sdhn_sim.envs.conditions import STAY, ConditionedEnv, ConditionModel, Conditions
+from sdhn_sim.envs.maif import ACTION_DELTAS, MaifEnv, MaifWorld
+from sdhn_sim.envs.maif_scripted import PlannerPolicy, bfs_distances
 
 DEFAULT_SET = "heldout_large"
 
@@ -135,6 +152,160 @@ def evaluate_under(policy: Policy, task: str, cond: Conditions, mode: Mode, *,
                 dr.reset(rows)
         obs = res.obs
     return [out[e] for e in range(b)]
+
+
+PLANNER = "planner"  # the policy name of the centralised planner's rows
+PLANNER_MODE = "centralised, replans from the true state"
+RELAXED = "relaxed bound"  # the policy name of the relaxed bound's rows
+RELAXED_MODE = "each robot alone on its shortest path"
+
+
+class PlannerError(ValueError):
+    """A condition the centralised planner cannot be played under."""
+
+
+class DelayedWorld:
+    """The planner's view of a ``MaifEnv`` under observation latency (a ``PlannerView``): each
+    robot where its latest observation saw it, ``age`` steps ago, and with ``dead_reckon`` moved
+    forward by the moves the planner sent since, each taken unless an obstacle or the grid's
+    edge is in its way (other robots ignored, as ``sdhn_policy.dead_reckoning`` does); goals,
+    obstacles and the clock as they are. Call ``record_state`` after reset and every step,
+    ``update(ages)`` before the planner acts and ``record_actions`` with what it chose."""
+
+    def __init__(self, env: MaifEnv, depth: int, dead_reckon: bool) -> None:
+        self.env = env
+        self.size = env.size
+        self.num_envs = env.num_envs
+        self.num_robots = env.num_robots
+        self.instances = env.instances
+        self.dead_reckon = dead_reckon
+        self._depth = int(depth)
+        slots = self._depth + 1
+        b, n = env.num_envs, env.num_robots
+        self._pos = np.zeros((slots, b, n, 2), dtype=np.int64)  # ring: state of global step g
+        self._act = np.zeros((slots, b, n), dtype=np.int64)  # ring: actions sent at step g
+        self._g = 0
+        self._view = env.positions
+        self._obstacles: dict[int, npt.NDArray[np.bool_]] = {}
+
+    def record_state(self) -> None:
+        self._pos[self._g % len(self._pos)] = self.env.positions
+
+    def record_actions(self, actions: npt.NDArray[np.int64]) -> None:
+        self._act[self._g % len(self._act)] = actions
+        self._g += 1
+
+    def update(self, ages: npt.NDArray[np.int64]) -> None:
+        slots = len(self._pos)
+        b, n = np.indices(ages.shape)
+        pos = self._pos[(self._g - ages) % slots, b, n].copy()  # [B, N, 2]
+        if self.dead_reckon and self._depth:
+            blocked = np.stack([self._grid(int(k)) for k in self.env.instance_id])
+            for s in range(self._depth):
+                moving = s < ages
+                d = ACTION_DELTAS[self._act[(self._g - ages + s) % slots, b, n]]
+                nxt = pos + d
+                inside = np.all((nxt >= 0) & (nxt < self.size), axis=2)
+                nx, ny = np.clip(nxt[..., 0], 0, self.size - 1), np.clip(nxt[..., 1], 0,
+                                                                           self.size - 1)
+                free = inside & ~blocked[b, ny, nx]
+                pos = np.where((moving & free)[..., None], nxt, pos)
+        self._view = pos
+
+    def _grid(self, k: int) -> npt.NDArray[np.bool_]:
+        if k not in self._obstacles:
+            self._obstacles[k] = self.instances.instance(k)[0]
+        return self._obstacles[k]
+
+    @property
+    def positions(self) -> npt.NDArray[np.int64]:
+        return self._view.copy()
+
+    @property
+    def step_count(self) -> npt.NDArray[np.int64]:
+        return self.env.step_count
+
+    def world(self, b: int = 0) -> MaifWorld:
+        return replace(self.env.world(b), positions=self._view[b].copy())
+
+
+def evaluate_planner_under(task: str, cond: Conditions, *, dead_reckon: bool = False,
+                           instances: int | None = None, which: str = DEFAULT_SET,
+                           seed: int = 0, max_steps: int = 500) -> list[ConditionResult]:
+    """The centralised planner, one episode per instance 0..instances-1 of set ``which`` under
+    ``cond`` (the condition model seeded ``seed``, as ``evaluate_under``); ``dead_reckon``: under
+    latency it moves the stale state forward by the moves it sent (see ``DelayedWorld``).
+    Conditions on what a robot reads (position noise, misread cells) do not reach a planner
+    that reads the state, and it would plan for failed robots: both are refused."""
+    for name in ("position_noise", "cell_misread", "failures"):
+        if getattr(cond, name):
+            raise PlannerError(f"planner: {name} is not modelled for the centralised planner "
+                               "(allowed: latency, latency_random, lost_actions, slow robots)")
+    inst = set_instances(task, which)
+    b = inst.num_instances if instances is None else min(int(instances), inst.num_instances)
+    base = MaifEnv(inst, num_envs=b, seed=seed, name=task, instance_order="round_robin",
+                   instance_ids=list(range(b)), reward="corrected", max_steps=max_steps)
+    env = ConditionedEnv(base, cond)
+    env.reset(seed=seed)
+    planner = PlannerPolicy(seed)
+    view = DelayedWorld(base, cond.latency, dead_reckon) if cond.latency else None
+    if view is not None:
+        view.record_state()
+    out: dict[int, ConditionResult] = {}
+    while len(out) < b:
+        if view is not None:
+            view.update(env.obs_age)
+            act = planner.act(view)
+            view.record_actions(act)
+        else:
+            act = planner.act(base)
+        env.step(act)
+        if view is not None:
+            view.record_state()
+        for o in env.outcomes:
+            e = o.env_index
+            if e not in out:
+                out[e] = ConditionResult(
+                    instance=e, map=e // inst.num_formations, success=o.survivors_completed,
+                    makespan=o.survivors_makespan, team_success=o.completed, failed=o.failed,
+                    length=o.length)
+    return [out[e] for e in range(b)]
+
+
+def relaxed_bound_under(task: str, cond: Conditions, *, instances: int | None = None,
+                        which: str = DEFAULT_SET, seed: int = 0,
+                        max_steps: int = 500) -> list[ConditionResult]:
+    """The relaxed bound on instances 0..instances-1 of set ``which`` under ``cond`` (the
+    condition model seeded ``seed``, drawing what it draws in ``evaluate_under``): per instance,
+    the first step by which every robot has had as many executed moves as its shortest path is
+    long (``makespan`` None past ``max_steps``). Only conditions on actions (lost actions, slow
+    robots) delay a lone robot that knows its own moves; others are refused."""
+    if cond.latency or cond.position_noise or cond.cell_misread or cond.failures:
+        raise PlannerError("relaxed bound: only lost_actions and slow robots are modelled")
+    inst = set_instances(task, which)
+    b = inst.num_instances if instances is None else min(int(instances), inst.num_instances)
+    need = []
+    for k in range(b):
+        obstacles, starts, goals = inst.instance(k)
+        free = ~obstacles
+        need.append([int(bfs_distances(free, int(gx), int(gy))[int(sy), int(sx)])
+                     for (sx, sy), (gx, gy) in zip(starts.tolist(), goals.tolist(), strict=True)])
+    length = np.asarray(need, dtype=np.int64)  # [B, N] moves each robot must make
+    n = length.shape[1]
+    model = ConditionModel(cond, b, n, seed, inst.config.size)
+    model.start(None, np.zeros((b, n, 1), dtype=np.float32))
+    moved = np.zeros_like(length)
+    done_at = np.where(length.max(axis=1) == 0, 0, -1)
+    move = np.ones((b, n), dtype=np.int64)  # any move: only whether it is let through counts
+    for t in range(1, max_steps + 1):
+        moved += model.act(move) != STAY
+        done_at = np.where((done_at < 0) & np.all(moved >= length, axis=1), t, done_at)
+        if np.all(done_at >= 0):
+            break
+    return [ConditionResult(instance=e, map=e // inst.num_formations, success=bool(d >= 0),
+                            makespan=int(d) if d >= 0 else None, team_success=bool(d >= 0),
+                            failed=0, length=int(d) if d >= 0 else max_steps)
+            for e, d in enumerate(done_at.tolist())]
 
 
 def _mean_ci(x: list[float], seed: int = 0) -> tuple[float | None, tuple[float, float] | None]:

@@ -13,6 +13,18 @@ sdhn_experiments.rware_conditions).
     .venv/bin/python scripts/eval_conditions.py models/rware-3-mappo scripted:rware-3 \\
         --instances 20 --conditions latency --severities 1 2 --dead-reckon both   # RWARE
 
+The best-case reference for a goal (``--planner``; with no model, ``--task`` names the task)::
+
+    .venv/bin/python scripts/eval_conditions.py --planner --task maif-10 \
+        --conditions lost_actions --severities 0.05 0.1 0.2 --instances 100
+    .venv/bin/python scripts/eval_conditions.py --planner --task maif-10 \
+        --conditions latency --severities 1 --dead-reckon both
+
+plays the centralised planner (replanning from the true state; under latency from the state
+the robots' observations saw, with ``--dead-reckon`` moved forward by its own moves) and, for
+conditions on actions, the relaxed bound (each robot alone on its shortest path under the same
+draws) on the same instances, seeds and condition draws, each against its own ideal run.
+
 Each row plays instances 0..K-1 of the large held-out set (K = --instances; maps of 5
 formations), the condition model seeded --seed; an RWARE model (or ``scripted:TASK``, the
 decentralised scripted policy) plays K episodes from the robustness suite's seeds (1,000,000 on),
@@ -24,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -32,10 +45,18 @@ from typing import Any
 from sdhn_base.yaml_io import YamlError, load_yaml
 from sdhn_experiments.condition_eval import (
     DEFAULT_SET,
+    PLANNER,
+    PLANNER_MODE,
+    RELAXED,
+    RELAXED_MODE,
+    ConditionResult,
     Mode,
+    PlannerError,
     card_mode,
+    evaluate_planner_under,
     evaluate_under,
     records_json,
+    relaxed_bound_under,
     set_instances,
     summarise_under,
 )
@@ -68,14 +89,16 @@ def fmt_ci(m: float | None, ci: Any, digits: int = 2) -> str:
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
-    out = ["| policy | task | mode | condition | severity | success [95 % CI, maps] | "
-           "team success | makespan [95 % CI] | makespan / ideal [95 % CI, paired] |",
-           "|---|---|---|---|---|---|---|---|---|"]
+    out = ["| policy | task | mode | condition | severity | instances | "
+           "success [95 % CI, maps] | team success | makespan [95 % CI] | "
+           "makespan / ideal [95 % CI, paired] |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         s = r["summary"]
         out.append(
             f"| {r['policy']} | {r['task']} | {r['mode']} | {r['condition']} | "
-            f"{r['severity']} | {fmt_ci(s['success_rate'], s['success_ci95_maps'], 3)} | "
+            f"{r['severity']} | {s['instances']} | "
+            f"{fmt_ci(s['success_rate'], s['success_ci95_maps'], 3)} | "
             f"{s['team_success_rate']:.3f} | "
             f"{fmt_ci(s['makespan_mean'], s['makespan_ci95'], 1)} | "
             f"{fmt_ci(s.get('makespan_over_ideal'), s.get('makespan_over_ideal_ci95'))} |")
@@ -141,9 +164,56 @@ def _rware_main(args: argparse.Namespace, models: list[Path],
     return 0
 
 
+def reference_rows(tasks: list[str], plan: list[tuple[str, str, Conditions]],
+                   reckon: list[bool], args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The planner's and the relaxed bound's rows for ``plan`` on each task, each against its
+    own ideal run (PlannerError: a condition they do not model)."""
+    rows: list[dict[str, Any]] = []
+    kw = {"instances": args.instances, "which": args.set, "seed": args.seed}
+    for task in tasks:
+        if task not in MAIF_CONFIGS:
+            raise PlannerError(f"{task!r} is not a MAIF task")
+        inst = set_instances(task, args.set)
+        ideal_p = evaluate_planner_under(task, Conditions(), **kw)
+        ideal_r = relaxed_bound_under(task, Conditions(), **kw)
+        runs: list[tuple[str, str, str, Conditions, bool]] = [
+            (PLANNER, "ideal", "-", Conditions(), False),
+            (RELAXED, "ideal", "-", Conditions(), False)]
+        for cname, sev, cond in plan:
+            if cond.position_noise or cond.cell_misread or cond.failures:
+                raise PlannerError(f"{cname} is not modelled (allowed: latency, "
+                                   "latency_random, lost_actions, slow_half)")
+            if cond.latency:  # a lone robot that knows its moves loses nothing to latency
+                runs += [(PLANNER, cname, sev, cond, dr) for dr in reckon]
+            else:
+                runs += [(PLANNER, cname, sev, cond, False), (RELAXED, cname, sev, cond, False)]
+        for who, cname, sev, cond, dr in runs:
+            t0 = time.process_time()
+            recs: list[ConditionResult]
+            if cname == "ideal":
+                recs = ideal_p if who == PLANNER else ideal_r
+            elif who == PLANNER:
+                recs = evaluate_planner_under(task, cond, dead_reckon=dr, **kw)
+            else:
+                recs = relaxed_bound_under(task, cond, **kw)
+            s = summarise_under(recs, ideal_p if who == PLANNER else ideal_r,
+                                inst.num_formations)
+            mode = (PLANNER_MODE if who == PLANNER else RELAXED_MODE) + (
+                ", dead reckoning" if dr else "")
+            print(f"[cond] {who} on {task} ({mode}) {cname} {sev}: success "
+                  f"{s['success_rate']:.3f}, makespan {s['makespan_mean']}, / ideal "
+                  f"{s.get('makespan_over_ideal')}, {time.process_time() - t0:.0f} CPU-s",
+                  flush=True)
+            rows.append({"policy": who, "task": task, "set": args.set,
+                         "set_checksum": set_checksum(inst), "mode": mode, "dead_reckon": dr,
+                         "condition": cname, "severity": sev, "conditions": cond.to_dict(),
+                         "seed": args.seed, "summary": s, "records": records_json(recs)})
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
-    p.add_argument("models", nargs="+", type=Path,
+    p.add_argument("models", nargs="*", type=Path,
                    help="model directories (card.json, actor); RWARE also scripted:TASK")
     p.add_argument("--task", help="task to play (default: the card's; another = transfer)")
     p.add_argument("--conditions", nargs="+", default=list(SWEEPS),
@@ -154,6 +224,9 @@ def main(argv: list[str] | None = None) -> int:
                                    "(a conditions: block), e.g. '{latency: 1, failures: 1}'")
     p.add_argument("--modes", nargs="+", default=["card"], choices=("card", "greedy"))
     p.add_argument("--dead-reckon", choices=("off", "on", "both"), default="off")
+    p.add_argument("--planner", action="store_true",
+                   help="MAIF: also play the centralised planner and the relaxed bound under "
+                        "the same conditions (on --task, else on each model's task)")
     p.add_argument("--instances", type=int, default=100,
                    help="MAIF instances / RWARE episodes per row")
     p.add_argument("--set", default=DEFAULT_SET)
@@ -165,6 +238,10 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         print(f"eval_conditions: --conditions: {bad} unknown; allowed: ideal, "
               f"{', '.join(SWEEPS)}", file=sys.stderr)
+        return 2
+    if not args.models and not (args.planner and args.task):
+        print("eval_conditions: give model directories, or --planner with --task",
+              file=sys.stderr)
         return 2
     if args.instances < 1:
         print("eval_conditions: --instances must be >= 1", file=sys.stderr)
@@ -183,7 +260,11 @@ def main(argv: list[str] | None = None) -> int:
             continue
         default_severities, make = SWEEPS[c]
         for v in args.severities or default_severities:
-            plan.append((c, f"{v:g}", make(v)))
+            try:
+                plan.append((c, f"{v:g}", make(v).validate()))
+            except ConditionsError as e:
+                print(f"eval_conditions: --severities: {c} {v:g}: {e}", file=sys.stderr)
+                return 2
     plan += extra
     reckon = {"off": [False], "on": [True], "both": [False, True]}[args.dead_reckon]
     rows: list[dict[str, Any]] = []
@@ -194,7 +275,6 @@ def main(argv: list[str] | None = None) -> int:
         card_task = None
         card = model / "card.json"
         if card.is_file():
-            import json
             card_task = json.loads(card.read_text())["env"]
         task = args.task or card_task
         if task not in MAIF_CONFIGS:
@@ -232,6 +312,16 @@ def main(argv: list[str] | None = None) -> int:
                                  "summary": s, "records": records_json(recs)})
                     if args.out:  # after every row: a long sweep keeps what it has
                         write_json(args.out, rows)
+    if args.planner:
+        tasks = [args.task] if args.task else list(dict.fromkeys(
+            json.loads((m / "card.json").read_text())["env"] for m in args.models))
+        try:
+            rows += reference_rows(tasks, plan, reckon, args)
+        except PlannerError as e:
+            print(f"eval_conditions: --planner: {e}", file=sys.stderr)
+            return 2
+        if args.out:
+            write_json(args.out, rows)
     table = markdown(rows)
     if args.markdown:
         args.markdown.write_text(table)

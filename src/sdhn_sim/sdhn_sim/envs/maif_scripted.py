@@ -26,12 +26,13 @@ import heapq
 import itertools
 from collections import deque
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from .api import EpisodeStats, FloatArray, IntArray
-from .maif import ACTION_DELTAS, COORD_FEATURES, WINDOW, MaifEnv
+from .maif import ACTION_DELTAS, COORD_FEATURES, WINDOW, MaifEnv, MaifWorld
 from .maif_instances import MAIF_CONFIGS
 from .registry import make_env
 
@@ -178,9 +179,28 @@ def _flat(cell: npt.NDArray[np.int64], size: int) -> int:
     return int(cell[1]) * size + int(cell[0])
 
 
+class PlannerView(Protocol):
+    """What the planner reads of the world: a ``MaifEnv``, or a view of one that shows the
+    robots elsewhere (``condition_eval``: where a delayed observation saw them)."""
+
+    size: int
+    num_envs: int
+    num_robots: int
+    instances: Any
+
+    @property
+    def positions(self) -> IntArray: ...
+
+    @property
+    def step_count(self) -> IntArray: ...
+
+    def world(self, b: int = 0) -> MaifWorld: ...
+
+
 class PlannerPolicy:
     """Centralised: per environment, a prioritized plan executed in the real env (replanned on
-    any deviation). Call ``act(env)`` before each ``env.step``."""
+    any deviation). Call ``act(env)`` before each ``env.step`` (``env``: the ``MaifEnv``, or a
+    ``PlannerView`` of it)."""
 
     def __init__(self, seed: int = 0, slack: int = 60, attempts: int = 3) -> None:
         self.rng = np.random.default_rng(seed)
@@ -190,7 +210,7 @@ class PlannerPolicy:
         self._failed: dict[int, bool] = {}
         self._cache: dict[tuple[int, int], dict[tuple[int, int], npt.NDArray[np.int64]]] = {}
 
-    def _replan(self, env: MaifEnv, b: int) -> None:
+    def _replan(self, env: PlannerView, b: int) -> None:
         w = env.world(b)
         n = len(w.positions)
         if self._failed.get(b):
@@ -211,7 +231,7 @@ class PlannerPolicy:
         self._failed[b] = not ok
         self._plans[b] = (paths, w.step)
 
-    def act(self, env: MaifEnv) -> IntArray:
+    def act(self, env: PlannerView) -> IntArray:
         size = env.size
         pos = env.positions  # [B, N, 2]
         steps = env.step_count

@@ -164,3 +164,44 @@ def test_latency_turns_the_scripted_robots_past_their_targets_and_the_rule_undoe
     assert stale.mechanism.rates()["forward_off_heading"] > 0.3
     assert reckoned.mechanism.rates()["turn_off_target"] == 0.0
     assert sum(stale.deliveries) == 0 < sum(reckoned.deliveries)
+
+
+def synthetic(lay_env: RwareBatchedEnv, x: int, y: int, heading: int,
+              gaps: tuple[tuple[int, int], ...] = ()) -> np.ndarray:
+    """A lone robot's observation at (x, y): shelves where the plan puts them but at ``gaps``."""
+    lay = lay_env.layout
+    o = np.zeros(SELF + 9 * 7, dtype=np.float32)
+    o[0], o[1], o[3 + heading], o[7] = x, y, 1.0, float(lay.highway[y, x])
+    cells = o[SELF:].reshape(3, 3, 7)
+    for wy in range(3):
+        for wx in range(3):
+            cx, cy = x + wx - 1, y + wy - 1
+            cells[wy, wx, 1] = 1.0
+            inside = 0 <= cx < lay.width and 0 <= cy < lay.height
+            cells[wy, wx, 5] = float(inside and not lay.highway[cy, cx] and (cx, cy) not in gaps)
+    cells[1, 1, 0:5] = 0.0
+    cells[1, 1, 0], cells[1, 1, 1 + heading] = 1.0, 1.0
+    return o
+
+
+@pytest.mark.parametrize("memory", [True, False])
+def test_a_gap_seen_before_is_remembered_and_forgotten_with_the_episode(memory: bool) -> None:
+    env = layout()
+    dr = RwareDeadReckoner(1, env.layout, memory=memory)
+    up = 0
+    gap = (2, 2)  # a storage cell whose shelf is gone
+    first = synthetic(env, 1, 1, up, gaps=(gap,))
+    dr.correct(first[None], [0])  # seen, current
+    dr.record([NOOP])
+    # later: the robot at (1, 4) facing up, two forward moves unseen: it stands at (1, 2)
+    later = synthetic(env, 1, 4, up)
+    dr.record([FORWARD])
+    dr.record([FORWARD])
+    pred = dr.correct(later[None], [2])[0]
+    assert (pred[0], pred[1]) == (1, 2)
+    shown = pred[SELF:].reshape(3, 3, 7)[1, 2, 5]  # the window cell of (2, 2)
+    assert shown == (0.0 if memory else 1.0)
+    dr.reset()  # a new episode: the plan again
+    dr.record([FORWARD])
+    dr.record([FORWARD])
+    assert dr.correct(later[None], [2])[0][SELF:].reshape(3, 3, 7)[1, 2, 5] == 1.0

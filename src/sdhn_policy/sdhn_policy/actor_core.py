@@ -236,11 +236,10 @@ class ActorCore:
             if self.stalls is not None:
                 self.stalls.reset()
             self._reset_reckoner()
-        if self.reckoner is not None and obs_age:
-            unseen = self.unseen_actions(step, obs_age)
-            if unseen:
-                self.reckoned += 1
-                obs = self.reckoner.correct(obs[None], [unseen])[0]
+        if self.reckoner is not None:  # on every observation: the RWARE rule remembers shelves
+            unseen = self.unseen_actions(step, obs_age) if obs_age else 0
+            self.reckoned += int(unseen > 0)
+            obs = self.reckoner.correct(obs[None], [unseen])[0]
         greedy, temperature = self.greedy, self.temperature
         if self.stalls is not None and self.stalls.update(obs[None])[0]:
             greedy, temperature = False, self.stalls.rule.temperature

@@ -22,11 +22,17 @@ robot alone: turns change the heading; FORWARD moves one cell along it, clamped 
 edge, and a loaded robot is stopped by a shelf in the target cell; TOGGLE_LOAD picks up the
 shelf under an empty-handed robot and puts a carried one down off the highways; a requested
 shelf carried onto a goal is delivered (no longer requested). What it knows of the floor: the
-window as seen, and beyond it the static floor plan (a shelf, not requested, on every storage
-cell, none on the highways). What it cannot know, and assumes: other robots stay where they were
-seen and never block it (rware may stop it behind a robot, or let a loaded robot pass a shelf
-another robot carries away); shelves other robots moved outside its window stand where the plan
-puts them; a request drawn since (a shelf that became requested) is not shown.
+window as seen, and beyond it what it remembers (``memory``, default): each cell as the newest
+observation that showed it this episode showed it (shelf, requested), the static floor plan
+where no observation did (a shelf, not requested, on every storage cell, none on the
+highways). The memory matters where the robot drives back to the gap it took a shelf from: on
+the plan every storage cell holds a shelf, so two steps stale the learned rware-3 policies drove
+past the gap and toggled their shelf on a highway, where rware keeps it (measured: 1,190 of
+1,240 toggles; deliveries 3.8 per episode with the plan, 15.9 with the memory). What it cannot
+know, and assumes: other robots stay where they were seen and never block it (rware may stop
+it behind a robot, or let a loaded robot pass a shelf another robot carries away); shelves
+other robots moved since it saw them stand where it saw them; a request drawn since it saw a
+shelf is not shown.
 
 NumPy only; runs per robot in the actor (``ActorCore``) and batched in process::
 
@@ -38,7 +44,8 @@ NumPy only; runs per robot in the actor (``ActorCore``) and batched in process::
 
 An observation older than ``horizon`` steps is moved by the last ``horizon`` actions only; an
 observation that is current (age 0), or whose unseen actions are all no-ops, is returned as it
-came.
+came. The RWARE rule reads every observation received (``correct`` with age 0 too) to remember
+the floor.
 """
 
 from __future__ import annotations
@@ -193,10 +200,11 @@ class RwareDeadReckoner(Reckoner):
     docstring for what it knows and what it assumes)."""
 
     def __init__(self, rows: int, layout: Layout, sensor_range: int = 1,
-                 horizon: int = HORIZON) -> None:
+                 horizon: int = HORIZON, memory: bool = True) -> None:
         if sensor_range < 1:
             raise ValueError(f"dead reckoning sensor_range: got {sensor_range}; allowed: >= 1")
         super().__init__(rows, horizon)
+        self.memory = memory
         self.layout = layout
         self.radius = sensor_range
         self.side = 2 * sensor_range + 1
@@ -205,14 +213,45 @@ class RwareDeadReckoner(Reckoner):
         self._goal = np.zeros_like(layout.highway)
         for gx, gy in layout.goals:
             self._goal[gy, gx] = True
+        # what each row last saw of every cell's shelf this episode; the plan where unseen
+        self._plan = np.broadcast_to(~layout.highway, (rows, *layout.highway.shape))
+        self._shelf = self._plan.copy()
+        self._req = np.zeros_like(self._shelf)
+
+    def reset(self, rows: Rows = None) -> None:
+        super().reset(rows)
+        sel: slice | npt.NDArray[np.intp] = (
+            slice(None) if rows is None else rows if isinstance(rows, slice)
+            else np.asarray(list(rows), dtype=np.intp))
+        self._shelf[sel] = self._plan[sel]
+        self._req[sel] = False
+
+    def _window(self, o: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.intp], ...]:
+        """(row, window y, window x, grid y, grid x) of every window cell on the grid."""
+        n, side, r = o.shape[0], self.side, self.radius
+        h, w = self._highway.shape
+        x = np.rint(o[:, 0]).astype(np.int64)
+        y = np.rint(o[:, 1]).astype(np.int64)
+        off = np.arange(side) - r
+        gy = np.broadcast_to(y[:, None, None] + off[None, :, None], (n, side, side))
+        gx = np.broadcast_to(x[:, None, None] + off[None, None, :], (n, side, side))
+        ri, wy, wx = np.nonzero((gy >= 0) & (gy < h) & (gx >= 0) & (gx < w))
+        return ri, wy, wx, gy[ri, wy, wx], gx[ri, wy, wx]
 
     def correct(self, obs: npt.ArrayLike, age: npt.ArrayLike) -> npt.NDArray[np.float32]:
-        """Observations [rows, D] received ``age`` [rows] steps old -> predicted current ones."""
+        """Observations [rows, D] received ``age`` [rows] steps old -> predicted current ones.
+        Call it on every observation received (a current one too): with ``memory`` the rule
+        remembers the shelves each one shows."""
         o = np.array(obs, dtype=np.float32, copy=True)
         if o.shape != (self.rows, self.obs_size):
             raise ValueError(f"dead reckoning reads RWARE observations of sensor range "
                              f"{self.radius}: expected [{self.rows}, {self.obs_size}], got "
                              f"{list(o.shape)}")
+        if self.memory:
+            ri, wy, wx, cy, cx = self._window(o)
+            cell = o[:, RWARE_SELF:].reshape(self.rows, self.side, self.side, RWARE_CELL)
+            self._shelf[ri, cy, cx] = cell[ri, wy, wx, 5] > 0.5
+            self._req[ri, cy, cx] = cell[ri, wy, wx, 6] > 0.5
         d = self.history.unseen(age)
         busy = np.zeros(self.rows, dtype=bool)  # rows with an unseen action that is not a no-op
         for back in range(1, int(d.max(initial=0)) + 1):
@@ -227,22 +266,20 @@ class RwareDeadReckoner(Reckoner):
                  hist_rows: npt.NDArray[np.intp]) -> npt.NDArray[np.float32]:
         n = o.shape[0]
         h, w = self._highway.shape
-        r, side = self.radius, self.side
+        side = self.side
         k = np.arange(n)
         x = np.rint(o[:, 0]).astype(np.int64)
         y = np.rint(o[:, 1]).astype(np.int64)
         load = o[:, 2] > 0.5
         head = np.argmax(o[:, 3:7], axis=1)
-        # the floor as the robot knows it: the plan, overwritten by the window it saw
-        shelf = np.broadcast_to(~self._highway, (n, h, w)).copy()
-        req = np.zeros((n, h, w), dtype=bool)
+        # the floor as the robot knows it: what it remembers (the plan where it saw nothing),
+        # overwritten by the window it sees
+        shelf = (self._shelf if self.memory else self._plan)[hist_rows].copy()
+        req = self._req[hist_rows].copy() if self.memory else np.zeros((n, h, w), dtype=bool)
         robot = np.zeros((n, h, w), dtype=np.int64)  # 0 none, 1 + heading
         win = o[:, RWARE_SELF:].reshape(n, side, side, RWARE_CELL)  # [row, wy, wx, feature]
-        off = np.arange(side) - r
-        gy = np.broadcast_to(y[:, None, None] + off[None, :, None], (n, side, side))
-        gx = np.broadcast_to(x[:, None, None] + off[None, None, :], (n, side, side))
-        ri, wy, wx = np.nonzero((gy >= 0) & (gy < h) & (gx >= 0) & (gx < w))
-        cy, cx, cell = gy[ri, wy, wx], gx[ri, wy, wx], win[ri, wy, wx]
+        ri, wy, wx, cy, cx = self._window(o)
+        cell = win[ri, wy, wx]
         shelf[ri, cy, cx] = cell[:, 5] > 0.5
         req[ri, cy, cx] = cell[:, 6] > 0.5
         robot[ri, cy, cx] = np.where(cell[:, 0] > 0.5, 1 + np.argmax(cell[:, 1:5], axis=1), 0)

@@ -28,7 +28,8 @@ DEPLOY=(configs/launch/deploy-maif10.yaml --set weights="$MODEL" --set run_dir="
 # How the actors act, read off the config the launcher runs (not restated here, where it could
 # drift from it).
 ACTIONS=$(.venv/bin/python -c 'import sys; from pathlib import Path
-from sdhn_bringup.supervisor import describe_actions, load_config
+from sdhn_bringup.launch_config import describe_actions
+from sdhn_bringup.launch_load import load_config
 print(describe_actions(load_config(Path(sys.argv[1]), sys.argv[2:])))' \
   configs/launch/deploy-maif10.yaml weights="$MODEL")
 echo "[demo] 1/3 deploying the shipped policy $MODEL on maif-10 (actions $ACTIONS," \

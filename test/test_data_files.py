@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_bringup.supervisor import Launcher, load_config
+from sdhn_bringup.launch_load import load_config
+from sdhn_bringup.supervisor import Launcher
 from sdhn_sim import data_files
 
 SRC = Path(__file__).resolve().parents[1] / "src"

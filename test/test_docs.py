@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_bringup.supervisor import LaunchConfig
+from sdhn_bringup.launch_config import LaunchConfig
 from sdhn_sim.envs.maif import DEFAULT_REWARD, MAIF_REWARDS
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 from sdhn_train.sections import EnvConfig

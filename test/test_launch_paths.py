@@ -14,13 +14,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sdhn_bringup.supervisor import (
-    LaunchConfigError,
-    describe_actions,
-    file_base,
-    load_config,
-    node_parameters,
-)
+from sdhn_bringup.launch_config import describe_actions
+from sdhn_bringup.launch_graph import node_parameters
+from sdhn_bringup.launch_load import LaunchConfigError, file_base, load_config
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "configs" / "launch" / "deploy-tiny.yaml"

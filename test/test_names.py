@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from sdhn_base.ros.runner import ConfigError as NodeConfigError
-from sdhn_bringup.supervisor import LaunchConfigError, load_config
+from sdhn_bringup.launch_load import LaunchConfigError, load_config
 from sdhn_experiments.experiments import ExperimentError, load_suite
 from sdhn_experiments.figures import method_order, task_order
 from sdhn_sim.envs.registry import env_names

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sdhn_bringup.supervisor import load_config, resolve_weights
+from sdhn_bringup.launch_load import load_config, resolve_weights
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((ROOT / "configs" / "launch").glob("*.yaml"))

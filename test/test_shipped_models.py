@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_bringup.supervisor import check_weights_fit, load_config
+from sdhn_bringup.launch_load import check_weights_fit, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH_CONFIGS = sorted((ROOT / "configs" / "launch").glob("*.yaml"))

@@ -153,7 +153,7 @@ def tiny_fit_weights(path: Path) -> Path:
 def test_a_weights_directory_means_its_actor_safetensors_only(tmp_path: Path) -> None:
     """A directory without actor.safetensors is refused naming what it holds; it never picks
     the last of the checkpoints or actors found anywhere below it."""
-    from sdhn_bringup.supervisor import LaunchConfigError, resolve_weights
+    from sdhn_bringup.launch_load import LaunchConfigError, resolve_weights
 
     run = tmp_path / "run"
     (run / "old" / "z").mkdir(parents=True)
@@ -169,16 +169,16 @@ def test_a_weights_directory_means_its_actor_safetensors_only(tmp_path: Path) ->
 def test_a_hosts_entry_must_name_a_namespace(tmp_path: Path, name: str,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     """``hosts.sim=..`` passed validation (``/run/netns/..`` exists) and failed at run time."""
-    from sdhn_bringup import supervisor
+    from sdhn_bringup import launch_load
 
     netns = tmp_path / "netns"
     (netns / "a").mkdir(parents=True)
     (netns / "real").touch()
-    monkeypatch.setattr(supervisor, "NETNS_DIR", netns)
-    ok = supervisor.load_config(None, ["mode=train", "env=maif-tiny", "hosts.sim=real"])
+    monkeypatch.setattr(launch_load, "NETNS_DIR", netns)
+    ok = launch_load.load_config(None, ["mode=train", "env=maif-tiny", "hosts.sim=real"])
     assert ok.hosts == {"sim": "real"}
-    with pytest.raises(supervisor.LaunchConfigError, match=r"hosts\.sim: no network namespace"):
-        supervisor.load_config(None, ["mode=train", "env=maif-tiny", f"hosts.sim={name}"])
+    with pytest.raises(launch_load.LaunchConfigError, match=r"hosts\.sim: no network namespace"):
+        launch_load.load_config(None, ["mode=train", "env=maif-tiny", f"hosts.sim={name}"])
 
 
 @pytest.mark.parametrize("attack", ["deep_header", "spec_infinity"])

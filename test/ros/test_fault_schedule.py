@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from envs.test_silent_robots import in_process_with_failure
 
-from sdhn_bringup.supervisor import LaunchConfigError, load_config
+from sdhn_bringup.launch_load import LaunchConfigError, load_config
 
 from .processes import node_processes
 

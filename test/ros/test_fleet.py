@@ -13,15 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_bringup.supervisor import (
-    DISCOVERY_CHILD,
-    LaunchConfig,
-    LaunchConfigError,
-    graph,
-    load_config,
-    start_stages,
-    validate,
-)
+from sdhn_bringup.launch_config import LaunchConfig
+from sdhn_bringup.launch_graph import DISCOVERY_CHILD, graph
+from sdhn_bringup.launch_load import LaunchConfigError, load_config, validate
+from sdhn_bringup.supervisor import start_stages
 
 from .processes import node_processes
 

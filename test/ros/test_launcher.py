@@ -15,15 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from sdhn_bringup.supervisor import (
-    LaunchConfig,
-    LaunchConfigError,
-    graph,
-    load_config,
-    node_parameters,
-    resolve,
-    validate,
-)
+from sdhn_bringup.launch_config import LaunchConfig
+from sdhn_bringup.launch_graph import graph, node_parameters
+from sdhn_bringup.launch_load import LaunchConfigError, load_config, resolve, validate
 from sdhn_policy.stall_breaker import StallRule
 
 from .processes import NodeProcess, node_processes

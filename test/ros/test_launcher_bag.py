@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sdhn_bringup.supervisor import LaunchConfigError, load_config, node_parameters, resolve
+from sdhn_bringup.launch_graph import node_parameters
+from sdhn_bringup.launch_load import LaunchConfigError, load_config, resolve
 from sdhn_sim.recording.reader import read_recording
 
 from .processes import ROS2, node_processes

@@ -19,8 +19,9 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import parameter_value_to_python
 
+from sdhn_bringup.launch_graph import PARAMS_FILE, graph, node_parameters
+from sdhn_bringup.launch_load import load_config
 from sdhn_bringup.params_doc import main as params_doc
-from sdhn_bringup.supervisor import PARAMS_FILE, graph, load_config, node_parameters
 
 from .processes import REPO, ROS2, node_processes
 
@@ -141,7 +142,7 @@ def test_launcher_passes_one_params_file_with_every_nodes_parameters(tmp_path: P
 
 
 def test_launcher_params_file_starts_a_node_with_its_values(tmp_path: Path) -> None:
-    from sdhn_bringup.supervisor import params_file_text
+    from sdhn_bringup.launch_graph import params_file_text
 
     cfg = load_config(None, ["mode=train", "env=maif-tiny", f"run_dir={tmp_path}",
                              "episodes=2", "step_deadline=0.25"])
@@ -164,7 +165,8 @@ def test_parameters_page_lists_what_the_nodes_declare() -> None:
 def test_restarted_trainer_reads_resume_from_the_later_file(tmp_path: Path) -> None:
     """rcl gives params.yaml's /sdhn/trainer entry precedence over any -p value, so a restart
     passes the resume file after it; a later file wins for the same node name."""
-    from sdhn_bringup.supervisor import RESUME_FILE, Launcher
+    from sdhn_bringup.launch_graph import RESUME_FILE
+    from sdhn_bringup.supervisor import Launcher
 
     cfg = load_config(None, ["mode=train", "env=maif-tiny", f"run_dir={tmp_path}",
                              "trainer.resume=false"])

@@ -11,7 +11,8 @@ import os
 import sys
 from pathlib import Path
 
-from sdhn_bringup.supervisor import load_config, node_parameters
+from sdhn_bringup.launch_graph import node_parameters
+from sdhn_bringup.launch_load import load_config
 
 from .processes import node_processes
 

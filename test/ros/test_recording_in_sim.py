@@ -18,7 +18,8 @@ from typing import Any
 import pytest
 from rosbags.highlevel import AnyReader
 
-from sdhn_bringup.supervisor import LaunchConfigError, load_config, node_parameters, resolve
+from sdhn_bringup.launch_graph import node_parameters
+from sdhn_bringup.launch_load import LaunchConfigError, load_config, resolve
 from sdhn_sim.recording.reader import Recording, read_recording
 from sdhn_sim.recording.rosbag2 import QOS_KEY, parse_offered_qos
 

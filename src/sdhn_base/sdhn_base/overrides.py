@@ -5,7 +5,7 @@
     coerce("seed", int, "7")                   # 7
 
 Used by the trainer's config (``sdhn_train.config``) and the launcher
-(``sdhn_bringup.supervisor``), so both accept the same spellings. Stdlib only. Every refusal
+(``sdhn_bringup.launch_load``), so both accept the same spellings. Stdlib only. Every refusal
 is an :class:`OverrideError` (a ``ValueError``) whose one-line message
 names the field and what is allowed:
 

@@ -110,6 +110,18 @@ def test_dead_reckoning_outside_a_deployment_is_refused() -> None:
         load_config(TINY, ["mode=train", "weights=", "dead_reckoning=true", "greedy=true"])
 
 
+@pytest.mark.parametrize(("model", "reckons"), [("rware-3-mappo", True), ("rware-3-sdhn", True),
+                                                ("rware-tiny-2ag-mappo", False)])
+def test_an_rware_card_names_dead_reckoning_in_its_deployment_mode(
+        tmp_path: Path, model: str, reckons: bool) -> None:
+    # the rware-3 cards deploy it (measured under latency); the tiny ones say nothing
+    env = json.loads((Path("models") / model / "card.json").read_text())["env"]
+    cfg = load_config(TINY, [f"env={env}", f"weights=models/{model}",
+                             f"run_dir={tmp_path / 'run'}"])
+    assert cfg.dead_reckoning is reckons
+    assert describe_actions(cfg).endswith("with dead reckoning") is reckons
+
+
 def test_an_rware_deployment_takes_dead_reckoning(tmp_path: Path) -> None:
     cfg = load_config(TINY, ["env=rware-tiny-2ag", "weights=models/rware-tiny-2ag-mappo",
                              f"run_dir={tmp_path / 'run'}", "dead_reckoning=true"])

@@ -190,9 +190,10 @@ def test_a_gap_seen_before_is_remembered_and_forgotten_with_the_episode(memory: 
     dr = RwareDeadReckoner(1, env.layout, memory=memory)
     up = 0
     gap = (2, 2)  # a storage cell whose shelf is gone
-    first = synthetic(env, 1, 1, up, gaps=(gap,))
-    dr.correct(first[None], [0])  # seen, current
     dr.record([NOOP])
+    dr.correct(synthetic(env, 1, 1, up, gaps=(gap,))[None], [0])  # seen, current
+    # an older observation arriving after it (random latency) does not overwrite it
+    dr.correct(synthetic(env, 1, 1, up)[None], [1])
     # later: the robot at (1, 4) facing up, two forward moves unseen: it stands at (1, 2)
     later = synthetic(env, 1, 4, up)
     dr.record([FORWARD])

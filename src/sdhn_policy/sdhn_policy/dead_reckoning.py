@@ -102,6 +102,11 @@ class ActionHistory:
         d = np.asarray(age, dtype=np.int64).reshape(self.rows)
         return np.minimum(np.minimum(d, self._count), self.horizon)
 
+    @property
+    def count(self) -> npt.NDArray[np.int64]:
+        """[rows] the actions each row sent this episode."""
+        return self._count
+
     def sent(self, back: int) -> npt.NDArray[np.int64]:
         """[rows] the action each row sent ``back`` steps ago (1 = the last one)."""
         return self._sent[:, self.horizon - back]
@@ -217,6 +222,9 @@ class RwareDeadReckoner(Reckoner):
         self._plan = np.broadcast_to(~layout.highway, (rows, *layout.highway.shape))
         self._shelf = self._plan.copy()
         self._req = np.zeros_like(self._shelf)
+        # the step (in actions sent) of the newest observation remembered: an older one that
+        # arrives later (random latency) does not overwrite it
+        self._seen_at = np.full(rows, -1, dtype=np.int64)
 
     def reset(self, rows: Rows = None) -> None:
         super().reset(rows)
@@ -225,6 +233,7 @@ class RwareDeadReckoner(Reckoner):
             else np.asarray(list(rows), dtype=np.intp))
         self._shelf[sel] = self._plan[sel]
         self._req[sel] = False
+        self._seen_at[sel] = -1
 
     def _window(self, o: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.intp], ...]:
         """(row, window y, window x, grid y, grid x) of every window cell on the grid."""
@@ -248,7 +257,13 @@ class RwareDeadReckoner(Reckoner):
                              f"{self.radius}: expected [{self.rows}, {self.obs_size}], got "
                              f"{list(o.shape)}")
         if self.memory:
+            count = self.history.count
+            when = count - np.minimum(np.asarray(age, dtype=np.int64).reshape(self.rows), count)
+            newer = when >= self._seen_at
+            self._seen_at = np.maximum(self._seen_at, when)
             ri, wy, wx, cy, cx = self._window(o)
+            keep = newer[ri]
+            ri, wy, wx, cy, cx = ri[keep], wy[keep], wx[keep], cy[keep], cx[keep]
             cell = o[:, RWARE_SELF:].reshape(self.rows, self.side, self.side, RWARE_CELL)
             self._shelf[ri, cy, cx] = cell[ri, wy, wx, 5] > 0.5
             self._req[ri, cy, cx] = cell[ri, wy, wx, 6] > 0.5

@@ -126,8 +126,10 @@ def action_selection() -> dict[str, Any]:
 
 def card_dead_reckoning(card: dict[str, Any] | None) -> bool:
     """Whether the card's deployment mode includes dead reckoning (``heldout_large.deploy``'s
-    ``dead_reckoning``; False where the card says nothing). The launcher deploys it from here."""
-    chosen = ((card or {}).get("heldout_large") or {}).get("deploy") or {}
+    ``dead_reckoning`` on a MAIF card, ``deploy``'s on a card without that set: RWARE; False
+    where the card says nothing). The launcher deploys it from here."""
+    c = card or {}
+    chosen = (c.get("heldout_large") or {}).get("deploy") or c.get("deploy") or {}
     return bool(chosen.get("dead_reckoning", False))
 
 

@@ -153,3 +153,22 @@ def test_the_cli_plays_the_planner_beside_the_relaxed_bound(tmp_path: Path) -> N
     assert ev.main(["--planner", "--task", "maif-tiny", "--set", "heldout",
                     "--conditions", "position_noise"]) == 2
     assert ev.main(["--conditions", "latency"]) == 2  # neither a model nor --planner
+
+
+def test_the_cli_plays_rware_with_and_without_dead_reckoning(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]
+                                                             ) -> None:
+    out = tmp_path / "rware.json"
+    assert condition_eval_cli.main(
+        ["scripted:rware-3", "--instances", "2", "--conditions", "latency", "--severities", "1",
+         "--dead-reckon", "both", "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    got = {(r["condition"], r["dead_reckon"]): r["summary"] for r in rows}
+    assert set(got) == {("ideal", False), ("latency", False), ("latency", True)}
+    assert got[("latency", False)]["deliveries_mean"] == 0.0  # the cliff
+    assert got[("latency", True)]["deliveries_mean"] > 5  # measured 17.2 over 20 episodes
+    assert got[("latency", False)]["rates"]["turn_off_target"] > 0.3
+    assert "| scripted | rware-3 |" in capsys.readouterr().out
+    # one family per call: an RWARE and a MAIF model together are refused
+    assert condition_eval_cli.main(["scripted:rware-3", "models/maif-tiny-sdhn",
+                                    "--instances", "1"]) == 2

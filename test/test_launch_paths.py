@@ -110,14 +110,15 @@ def test_dead_reckoning_outside_a_deployment_is_refused() -> None:
         load_config(TINY, ["mode=train", "weights=", "dead_reckoning=true", "greedy=true"])
 
 
-@pytest.mark.parametrize(("model", "reckons"), [("rware-3-mappo", True), ("rware-3-sdhn", True),
-                                                ("rware-tiny-2ag-mappo", False)])
+@pytest.mark.parametrize("model", ["rware-3-mappo", "rware-3-sdhn", "rware-tiny-2ag-mappo",
+                                   "rware-tiny-4ag-mappo"])
+@pytest.mark.parametrize(("sets", "reckons"), [([], True), (["dead_reckoning=false"], False)])
 def test_an_rware_card_names_dead_reckoning_in_its_deployment_mode(
-        tmp_path: Path, model: str, reckons: bool) -> None:
-    # the rware-3 cards deploy it (measured under latency); the tiny ones say nothing
+        tmp_path: Path, model: str, sets: list[str], reckons: bool) -> None:
+    # every RWARE card deploys it (measured under latency) unless the config refuses it
     env = json.loads((Path("models") / model / "card.json").read_text())["env"]
     cfg = load_config(TINY, [f"env={env}", f"weights=models/{model}",
-                             f"run_dir={tmp_path / 'run'}"])
+                             f"run_dir={tmp_path / 'run'}", *sets])
     assert cfg.dead_reckoning is reckons
     assert describe_actions(cfg).endswith("with dead reckoning") is reckons
 

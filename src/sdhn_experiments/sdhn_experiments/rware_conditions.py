@@ -124,15 +124,14 @@ def learned(rt: ActorRuntime, num_envs: int, num_robots: int, *, greedy: bool = 
 
 
 def scripted(task: str, num_robots: int, seed: int = 0) -> Act:
-    """The decentralised scripted policy (it forgets its memory when a robot's cell jumps)."""
+    """The decentralised scripted policy, its memory forgotten at each env's new episode."""
     env = make_env(task, num_envs=1)
     assert isinstance(env, RwareBatchedEnv)
     pol = DecentralisedPolicy(env.layout, num_robots, seed=seed)
 
     def act(obs: npt.NDArray[np.float32], restarted: list[int]) -> IntArray:
         for e in restarted:
-            for i in range(num_robots):
-                pol._memory.pop((e, i), None)
+            pol.forget(e)
         return pol.act(obs)
 
     return act

@@ -73,6 +73,11 @@ class DecentralisedPolicy:
         passable = self._highway.copy() if loaded else np.ones_like(self._highway)
         return bfs_from(list(target), passable)
 
+    def forget(self, env: int) -> None:
+        """A new episode in env ``env``: its robots start with no memory (as after a jump)."""
+        for i in range(self.num_robots):
+            self._memory.pop((env, i), None)
+
     def act(self, obs: FloatArray) -> IntArray:
         nb, n = obs.shape[:2]
         out = np.zeros((nb, n), dtype=np.int64)

@@ -5,7 +5,9 @@
 
 One panel pair per condition (success with its 95 % interval over maps; makespan over the ideal
 world with its 95 % interval over instances) against severity, one line per policy and mode
-(dead reckoning dashed). Rows measured twice (several input files) keep the last one read.
+(dead reckoning dashed). Inputs: ``eval_conditions.py --out`` lists, or results files
+``{"note": ..., "runs": {name: list}}``; rows measured twice (same policy, task, mode,
+condition, severity) keep the last one read.
 """
 
 from __future__ import annotations
@@ -22,7 +24,10 @@ from sdhn_experiments.condition_eval_cli import SEVERITY_NAMES, markdown
 def load_rows(paths: list[Path]) -> list[dict[str, Any]]:
     rows: dict[tuple[str, str, str, str, str], dict[str, Any]] = {}
     for p in paths:
-        for r in json.loads(p.read_text()):
+        data = json.loads(p.read_text())
+        if isinstance(data, dict):  # {"note": ..., "runs": {name: rows}}: a results file
+            data = [r for run in data["runs"].values() for r in run]
+        for r in data:
             r.pop("records", None)
             rows[(r["policy"], r["task"], r["mode"], r["condition"], r["severity"])] = r
     return list(rows.values())
@@ -37,7 +42,8 @@ def figure(rows: list[dict[str, Any]], path: Path) -> None:
     fig, axes = plt.subplots(2, len(conds), figsize=(3.2 * len(conds), 5.6), squeeze=False)
     lines = sorted({(r["policy"], r["task"], r["mode"]) for r in rows if r["condition"] != "ideal"})
     for j, c in enumerate(conds):
-        for pol, task, mode in lines:
+        for idx, (pol, task, mode) in enumerate(lines):
+            colour = plt.get_cmap("tab20")(idx % 20)  # one colour per line in every panel
             ideal = [r for r in rows if (r["policy"], r["task"], r["condition"]) ==
                      (pol, task, "ideal") and r["mode"].replace(", dead reckoning", "") ==
                      mode.replace(", dead reckoning", "")]
@@ -57,14 +63,14 @@ def figure(rows: list[dict[str, Any]], path: Path) -> None:
             lo = [p["success_rate"] - p["success_ci95_maps"][0] for _, p in pts]
             hi = [p["success_ci95_maps"][1] - p["success_rate"] for _, p in pts]
             axes[0, j].errorbar(xs, s, yerr=[lo, hi], linestyle=style, marker="o", ms=3,
-                                capsize=2, label=label)
+                                capsize=2, label=label, color=colour)
             mk = [(x, p) for x, p in pts if p.get("makespan_over_ideal") is not None]
             if mk:
                 m = [p["makespan_over_ideal"] for _, p in mk]
                 mlo = [p["makespan_over_ideal"] - p["makespan_over_ideal_ci95"][0] for _, p in mk]
                 mhi = [p["makespan_over_ideal_ci95"][1] - p["makespan_over_ideal"] for _, p in mk]
                 axes[1, j].errorbar([x for x, _ in mk], m, yerr=[mlo, mhi], linestyle=style,
-                                    marker="o", ms=3, capsize=2)
+                                    marker="o", ms=3, capsize=2, color=colour)
         axes[0, j].set_title(c.replace("_", " "), fontsize=10)
         axes[0, j].set_ylim(-0.03, 1.03)
         axes[1, j].set_xlabel(SEVERITY_NAMES[c], fontsize=9)

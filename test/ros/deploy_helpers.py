@@ -22,6 +22,11 @@ from .processes import ROS2
 TEAM_NS = "/sdhn"
 # Each test uses its own team namespace: a node killed by an earlier test lingers in the DDS graph
 # until its lease expires, and must not count as a subscriber or publisher of the next test.
+EXACT_DEADLINE_S = 60.0
+# The simulator's step deadline in tests that compare a deployment with the in-process rollout or
+# count missed actions: lock-step then waits for every action, so the outcome depends on no
+# process's speed. At the default 1 s an actor starved at load ~20 missed a step, and the test
+# failed on that alone (a flaky test_conditions_deploy run).
 
 
 def export_weights(root: Path, env: str = "maif-tiny", seed: int = 1) -> Path:

@@ -21,6 +21,7 @@ from envs.test_conditions import play_in_process
 
 from sdhn_sim.envs.conditions import Conditions
 
+from .deploy_helpers import EXACT_DEADLINE_S
 from .processes import node_processes
 from .test_fault_schedule import outcome
 
@@ -36,7 +37,8 @@ SEED, EPISODES = 7, 3
 ], ids=["latency_and_loss", "failure"])
 def test_a_deployment_under_conditions_reproduces_the_in_process_outcomes(
         tmp_path: Path, block: str, cond: Conditions) -> None:
-    sets = [f"run_dir={tmp_path}", "recorder=false", f"seed={SEED}", f"episodes={EPISODES}",
+    sets = [f"run_dir={tmp_path}", "recorder=false", f"step_deadline={EXACT_DEADLINE_S}",
+            f"seed={SEED}", f"episodes={EPISODES}",
             "max_steps=60", f"conditions={block}",
             f"team_ns=/sdhn_cond_{cond.failures}_{os.getpid()}"]  # never a lingering run's
     args = [*LAUNCH, *(a for s in sets for a in ("--set", s))]
@@ -56,7 +58,8 @@ def test_a_deployment_under_conditions_reproduces_the_in_process_outcomes(
 @pytest.mark.parametrize("reckon", [True, False], ids=["dead_reckoning", "plain"])
 def test_dead_reckoning_over_ros_gives_the_in_process_outcome_under_latency(
         tmp_path: Path, reckon: bool) -> None:
-    sets = [f"run_dir={tmp_path}", "recorder=false", f"seed={SEED}", f"episodes={EPISODES}",
+    sets = [f"run_dir={tmp_path}", "recorder=false", f"step_deadline={EXACT_DEADLINE_S}",
+            f"seed={SEED}", f"episodes={EPISODES}",
             "max_steps=60", "conditions={latency: 1}", f"dead_reckoning={str(reckon).lower()}",
             f"team_ns=/sdhn_reckon_{int(reckon)}_{os.getpid()}"]
     args = [*LAUNCH, *(a for s in sets for a in ("--set", s))]
@@ -78,7 +81,8 @@ def test_rware_dead_reckoning_over_ros_gives_the_in_process_deliveries(tmp_path:
     from sdhn_experiments.rware_conditions import learned, play_rware
     from sdhn_policy.actor_runtime import ActorRuntime
 
-    sets = [f"run_dir={tmp_path}", "recorder=false", f"seed={SEED}", "episodes=1",
+    sets = [f"run_dir={tmp_path}", "recorder=false", f"step_deadline={EXACT_DEADLINE_S}",
+            f"seed={SEED}", "episodes=1",
             "max_steps=100", "conditions={latency: 1}", "dead_reckoning=true",
             f"team_ns=/sdhn_reckon_rware_{os.getpid()}"]
     args = [sys.executable, "-m", "sdhn_bringup", "configs/launch/deploy-rware-tiny-2ag.yaml",

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from rclpy.node import NodeNameNonExistentError
 
-from .deploy_helpers import actor_cmd, observer, sim_cmd, stop_all
+from .deploy_helpers import EXACT_DEADLINE_S, actor_cmd, observer, sim_cmd, stop_all
 from .processes import node_processes
 
 N = 4
@@ -51,7 +51,8 @@ def test_each_actor_process_sees_only_its_own_observation(weights: Path) -> None
         assert spin(20, lambda: all(node.count_publishers(f"{ns}/robot_{i}/action") >= 1
                                     for i in range(N)))
         with node_processes(sim_cmd(ns=ns, episodes=1, max_steps=STEPS, seed=3,
-                                    extra_subscribers=1)) as (sim,):
+                                    extra_subscribers=1,
+                                    step_deadline=EXACT_DEADLINE_S)) as (sim,):
             assert spin(40, lambda: len(seen.episodes) == 1), f"no episode:\n{sim.output}"
             sim.proc.wait(timeout=10)
         assert sim.proc.returncode == 0, sim.output

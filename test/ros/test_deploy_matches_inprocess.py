@@ -13,6 +13,7 @@ from sdhn_policy.onnx_export import write_onnx
 from sdhn_policy.weights import decode_weights, load_actor_file
 
 from .deploy_helpers import (
+    EXACT_DEADLINE_S,
     action_table,
     actor_cmd,
     inprocess_greedy_actions,
@@ -43,7 +44,8 @@ def test_ros_deploy_actions_equal_inprocess_greedy_rollout(weights: Path, backen
         assert spin(30, lambda: all(node.count_publishers(t) >= 1 for t in actions)), [
             p.output for p in procs]
         with node_processes(sim_cmd(ns=ns, seed=SEED, episodes=EPISODES, max_steps=MAX_STEPS,
-                                    extra_subscribers=1)) as (sim,):
+                                    extra_subscribers=1,
+                                    step_deadline=EXACT_DEADLINE_S)) as (sim,):
             assert spin(60, lambda: len(seen.episodes) == EPISODES), sim.output
             sim.proc.wait(timeout=10)
         stop_all(procs)
@@ -92,7 +94,8 @@ def test_rware_ros_deploy_equals_inprocess_greedy_rollout(tmp_path: Path, gru_hi
         assert spin(30, lambda: all(node.count_publishers(t) >= 1 for t in actions)), [
             p.output for p in procs]
         with node_processes(sim_cmd("rware-tiny-2ag", ns=ns, seed=SEED, episodes=1,
-                                    max_steps=steps, extra_subscribers=1)) as (sim,):
+                                    max_steps=steps, extra_subscribers=1,
+                                    step_deadline=EXACT_DEADLINE_S)) as (sim,):
             assert spin(60, lambda: len(seen.episodes) == 1), sim.output
             sim.proc.wait(timeout=10)
         stop_all(procs)

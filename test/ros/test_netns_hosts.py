@@ -20,7 +20,13 @@ from sdhn_base.ros import topics
 from sdhn_base.ros.status import EventReader
 from sdhn_sim.recording.reader import Recording, read_recording
 
-from .deploy_helpers import actor_cmd, inprocess_greedy_actions, sim_cmd, stop_all
+from .deploy_helpers import (
+    EXACT_DEADLINE_S,
+    actor_cmd,
+    inprocess_greedy_actions,
+    sim_cmd,
+    stop_all,
+)
 from .netns import Net, closed_network, host_env, netem_unavailable_reason, unavailable_reason
 from .processes import REPO, ROS2, node_processes
 
@@ -69,7 +75,8 @@ def test_deploy_across_namespaces_equals_inprocess_greedy_rollout(
             assert obs.wait_for_line("observer: actors seen", 90), obs.output
             with node_processes(net.hosts["sim"].exec(
                     sim_cmd(ns=ns, seed=seed, episodes=episodes, max_steps=max_steps,
-                            extra_subscribers=1), env)) as (sim,):
+                            extra_subscribers=1, step_deadline=EXACT_DEADLINE_S),
+                    env)) as (sim,):
                 assert sim.proc.wait(timeout=120) == 0, sim.output
             assert obs.proc.wait(timeout=30) == 0, obs.output
             stop_all(procs[1:])

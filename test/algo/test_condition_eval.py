@@ -172,3 +172,14 @@ def test_the_cli_plays_rware_with_and_without_dead_reckoning(tmp_path: Path,
     # one family per call: an RWARE and a MAIF model together are refused
     assert condition_eval_cli.main(["scripted:rware-3", "models/maif-tiny-sdhn",
                                     "--instances", "1"]) == 2
+
+
+def test_an_rware_model_plays_another_team_size_with_its_ids_moved() -> None:
+    """rware-3's actors read a 3-way one-hot robot id; on rware-6 robots 3-5 get the mean of the
+    trained ids' weights (sdhn_policy.team_size.for_team) instead of an out-of-range id error."""
+    from sdhn_experiments.rware_conditions import play_rware, policy_maker
+
+    name, make = policy_maker("models/rware-3-mappo")
+    res = play_rware(make, "rware-6", Conditions(), episodes=2, seed=1_000_000, max_steps=200)
+    assert name == "rware-3-mappo" and len(res.deliveries) == 2
+    assert sum(res.deliveries) > 0  # measured: 42.4 per 500-step episode over 20

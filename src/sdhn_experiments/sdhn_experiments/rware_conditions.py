@@ -38,6 +38,8 @@ import numpy.typing as npt
 
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.dead_reckoning import RwareDeadReckoner
+from sdhn_policy.team_size import for_team
+from sdhn_policy.weights import decode_weights, load_actor_file
 from sdhn_sim.envs.conditions import ConditionedEnv, Conditions
 from sdhn_sim.envs.registry import make_env
 from sdhn_sim.envs.rware_batched import (
@@ -226,9 +228,14 @@ def policy_maker(model: str, mode_greedy: bool = True, temperature: float = 1.0
         return SCRIPTED, lambda b, n: scripted(task, n)
     from pathlib import Path
 
-    rt = ActorRuntime.from_file(Path(model) / "actor.safetensors")
-    return Path(model).name, lambda b, n: learned(rt, b, n, greedy=mode_greedy,
-                                                   temperature=temperature)
+    spec, tensors = decode_weights(load_actor_file(Path(model) / "actor.safetensors"))
+
+    def make(b: int, n: int) -> Act:
+        # another team than it trained with: its one-hot ids moved as warm start moves them
+        return learned(ActorRuntime(*for_team(spec, tensors, n)), b, n, greedy=mode_greedy,
+                       temperature=temperature)
+
+    return Path(model).name, make
 
 
 def markdown_rows(rows: list[dict[str, Any]]) -> str:

@@ -141,12 +141,18 @@ def test_recording_of_the_train_run_holds_every_step(train_run: TrainRun) -> Non
     for _, a in rec.decoded("/action"):
         actions[(a.episode, a.step)] = actions.get((a.episode, a.step), 0) + 1
     states = {(s.episode, s.step) for _, s in rec.decoded("/state")}
+    def recorded(count: int | None, k: int, t: int) -> bool:
+        # The first step of the run may hold re-sent copies: until every robot has answered it,
+        # the simulator re-sends it to the silent ones (its start handshake), who answer each.
+        return count == N or (k == 0 and t == 0 and count is not None and count > N)
+
     for k, row in live.items():
         for t in range(row.length + 1):
-            assert obs.get((k, t)) == N, f"episode {k} step {t}: {obs.get((k, t))} obs recorded"
+            assert recorded(obs.get((k, t)), k, t), f"episode {k} step {t}: {obs.get((k, t))} obs"
             assert (k, t) in states, f"episode {k} step {t}: no state recorded"
         for t in range(row.length):
-            assert actions.get((k, t)) == N, f"episode {k} step {t}: {actions.get((k, t))} actions"
+            assert recorded(actions.get((k, t)), k, t), (
+                f"episode {k} step {t}: {actions.get((k, t))} actions")
             assert (k, t) in acts
         b = recomputed[k]
         assert (row.length, row.completed, row.makespan, row.missed_actions, row.policy_version

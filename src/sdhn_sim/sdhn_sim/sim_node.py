@@ -64,6 +64,12 @@ from sdhn_sim.recording.queued import QueuedRecording, graph_offers
 from sdhn_sim.recording.reader import fresh_path
 
 LOG_EVERY_S = 2.0  # period of the progress line
+# Until every robot has answered the first step, its observation is re-sent to the silent ones this
+# often (or every step_deadline, if shorter): a long deadline (tests that compare lock-step runs
+# exactly use 60 s) must not make an actor whose action writer matched the simulator late wait
+# that long and then be counted as missed. Not shorter: an actor still loading at a busy start
+# would answer the first step twice.
+HANDSHAKE_RESEND_S = 5.0
 
 
 # The parameters, typed and ranged (they mirror SimConfig; SimConfig.validate checks the rest).
@@ -148,9 +154,10 @@ class SimNode(Node):
         self._poses_msg.header.frame_id = FRAME_ID
         self.drops: Counter[str] = Counter()
         self.started = False
-        # Until every robot has answered the first step, a missed deadline re-sends that step to
-        # the silent robots instead of stepping with 'stay': matching is only visible from the
-        # sim's side, so an actor may not yet receive from a sim that already sees it.
+        # Until every robot has answered the first step, that step is re-sent to the silent
+        # robots (every HANDSHAKE_RESEND_S) instead of stepping with 'stay' at the deadline:
+        # matching is only visible from the sim's side, so an actor may not yet receive from (or
+        # reach) a sim that already sees it.
         self.handshake = True
         self.stepping = False  # between the first published step and the end
         self.realtime_timer: Timer | None = None
@@ -158,6 +165,7 @@ class SimNode(Node):
         self.late_ticks = 0  # realtime: ticks that came over 1.5 periods after the previous one
         self.t_start = time.monotonic()
         self.deadline = float("inf")
+        self.resend_at = float("inf")  # the start handshake's next re-send of the first step
         self.steps_total = 0
         self.t_last_log = 0.0
         self.steps_at_last_log = 0
@@ -230,8 +238,9 @@ class SimNode(Node):
                     f"action publishers {[s.get_publisher_count() for s in self.action_subs]})")
                 self.finish(1)
             return
-        if now >= self.deadline and self.handshake and now - self.t_start < self.cfg.start_timeout:
-            self.resend_first_step()
+        if self.handshake and now - self.t_start < self.cfg.start_timeout:
+            if now >= self.resend_at:
+                self.resend_first_step()
         elif now >= self.deadline and self.cfg.realtime:
             self.start_realtime()  # start_timeout passed: the silent robots stay from here on
         elif now >= self.deadline:
@@ -290,6 +299,7 @@ class SimNode(Node):
                 self.send_observation(frame, i, now)
         self.get_logger().info(f"first step: no answer yet from robots {silent}; re-sent")
         self.deadline = time.monotonic() + self.cfg.step_deadline
+        self.resend_at = time.monotonic() + min(self.cfg.step_deadline, HANDSHAKE_RESEND_S)
 
     def start_realtime(self) -> None:
         """End of the start handshake: step 0 now, then every 1 / rate_hz seconds."""
@@ -347,6 +357,8 @@ class SimNode(Node):
             self.publish_poses(f, Time(sec=sec, nanosec=nanosec))
         self.deadline = (float("inf") if f.done or (self.cfg.realtime and not self.handshake)
                          else time.monotonic() + self.cfg.step_deadline)
+        self.resend_at = (time.monotonic() + min(self.cfg.step_deadline, HANDSHAKE_RESEND_S)
+                          if self.handshake and not f.done else float("inf"))
 
     def publish_state(self, f: Frame, now_ns: int, send: bool) -> None:
         """TeamState of frame f: sent when ``send``, recorded when recording."""

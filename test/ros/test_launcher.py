@@ -107,6 +107,9 @@ def test_killed_child_is_reported_and_sigterm_stops_all(weights: Path, tmp_path:
         assert code == 1, out
         assert "actor_2=killed by SIGKILL" in final and final.count("exit 0") == 4, final
         assert "failed: actor_2" in out
+        # and why, without opening the file: its log's last lines (here the actor's start-up)
+        tail = out.split("actor_2: last lines of", 1)[1]
+        assert "[sdhn_launch_never.robot_2.actor]" in tail, out
 
 
 def test_managed_actors_are_driven_to_active_again_after_a_restart(weights: Path,

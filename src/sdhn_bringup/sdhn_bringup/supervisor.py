@@ -254,6 +254,21 @@ def node_status_parts(statuses: dict[str, dict[str, Any]]) -> list[str]:
     return parts
 
 
+FAILED_LOG_LINES = 12  # a failed child's log lines the summary repeats
+LOG_LINE_CHARS = 200
+
+
+def log_tail(path: Path, lines: int) -> list[str]:
+    """The last ``lines`` non-empty lines of a child's log, each cut at ``LOG_LINE_CHARS``."""
+    with open(path, "rb") as f:
+        f.seek(0, 2)
+        f.seek(max(0, f.tell() - 64 * 1024))
+        text = f.read().decode(errors="replace")
+    kept = [line.rstrip() for line in text.splitlines() if line.strip()][-lines:]
+    return [line if len(line) <= LOG_LINE_CHARS else line[:LOG_LINE_CHARS] + " [...]"
+            for line in kept]
+
+
 def describe_exit(code: int | None) -> str:
     if code is None:
         return "running"
@@ -569,6 +584,11 @@ class Launcher:
             self.say(f"restarts: {restarts}")
         self.say(f"{len(self.episodes)} episodes; "
                  + (f"failed: {', '.join(bad)}" if bad else "every child stopped cleanly"))
+        for child in self.children:  # why, without opening files (and in a CI log)
+            if child.spec.name in bad and child.log_path.exists():
+                self.say(f"{child.spec.name}: last lines of {child.log_path}:")
+                for line in log_tail(child.log_path, FAILED_LOG_LINES):
+                    self.say(f"  {line}")
         recording = recording_path(self.cfg, self.run_dir)
         if recording.exists():
             self.say(f"recording: {recording}")

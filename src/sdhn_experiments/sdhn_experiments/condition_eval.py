@@ -104,6 +104,17 @@ class ConditionResult:
     length: int
 
 
+def keep_outcomes(env: ConditionedEnv, out: dict[int, ConditionResult],
+                  num_formations: int) -> None:
+    """Each env's first finished episode (instance b played by env b) into ``out``."""
+    for o in env.outcomes:
+        if o.env_index not in out:
+            out[o.env_index] = ConditionResult(
+                instance=o.env_index, map=o.env_index // num_formations,
+                success=o.survivors_completed, makespan=o.survivors_makespan,
+                team_success=o.completed, failed=o.failed, length=o.length)
+
+
 def evaluate_under(policy: Policy, task: str, cond: Conditions, mode: Mode, *,
                    instances: int | None = None, which: str = DEFAULT_SET, seed: int = 0,
                    reward: str = "corrected", max_steps: int = 500) -> list[ConditionResult]:
@@ -136,13 +147,7 @@ def evaluate_under(policy: Policy, task: str, cond: Conditions, mode: Mode, *,
         if dr is not None:
             dr.record(act)
         res = env.step(act.reshape(b, n))
-        for o in env.outcomes:
-            e = o.env_index
-            if e not in out:
-                out[e] = ConditionResult(
-                    instance=e, map=e // inst.num_formations, success=o.survivors_completed,
-                    makespan=o.survivors_makespan, team_success=o.completed, failed=o.failed,
-                    length=o.length)
+        keep_outcomes(env, out, inst.num_formations)
         for ep in res.episodes:
             rows = slice(ep.env_index * n, (ep.env_index + 1) * n)
             h[rows] = 0.0
@@ -262,13 +267,7 @@ def evaluate_planner_under(task: str, cond: Conditions, *, dead_reckon: bool = F
         env.step(act)
         if view is not None:
             view.record_state()
-        for o in env.outcomes:
-            e = o.env_index
-            if e not in out:
-                out[e] = ConditionResult(
-                    instance=e, map=e // inst.num_formations, success=o.survivors_completed,
-                    makespan=o.survivors_makespan, team_success=o.completed, failed=o.failed,
-                    length=o.length)
+        keep_outcomes(env, out, inst.num_formations)
     return [out[e] for e in range(b)]
 
 

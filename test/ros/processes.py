@@ -14,6 +14,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 ROS2 = [sys.executable, "-m", "sdhn_bringup.ros2_cli"]
+NOTE_LINES = 8  # each process's output lines added to a failure inside node_processes
 
 
 class NodeProcess:
@@ -91,6 +92,13 @@ def node_processes(*commands: Sequence[str]) -> Iterator[list[NodeProcess]]:
     started = [NodeProcess(command) for command in commands]
     try:
         yield started
+    except BaseException as failure:
+        # Every process's last lines with the failure: an assert that names one process's
+        # output (the simulator's) leaves out the actor that did not start or stop.
+        for node in started:
+            tail = "\n  ".join(node.lines[-NOTE_LINES:]) or "(no output)"
+            failure.add_note(f"[{' '.join(node.args[-8:])[:160]}] last output:\n  {tail}")
+        raise
     finally:
         for node in started:
             if node.proc.poll() is None:

@@ -5,6 +5,8 @@ counted drop that leaves the core as it was."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -26,7 +28,7 @@ def rt() -> ActorRuntime:
 
 
 def core(rt: ActorRuntime, **kw: object) -> ActorCore:
-    return ActorCore(0, 4, greedy=True, seed=0, runtime=rt, dead_reckon_grid=GRID,
+    return ActorCore(0, 4, greedy=True, seed=0, runtime=rt, reckoner=DeadReckoner(1, GRID),
                      **kw)  # type: ignore[arg-type]
 
 
@@ -140,29 +142,18 @@ def test_without_dead_reckoning_the_age_is_not_read(rt: ActorRuntime) -> None:
     assert isinstance(c.on_obs(0, 1, 0, 4, o, obs_age=7), Decision)
 
 
-def test_lockstep_actors_with_dead_reckoning_act_as_the_in_process_batch() -> None:
-    """The deployment's path (the lock-step simulator's frames with ``obs_age``, one actor core
-    per robot) and the in-process one (``ConditionedEnv`` and one batched reckoner, as
-    condition_eval runs it) choose the same actions step for step: greedy maif-20 under one
-    step of latency, 150 steps (the two once parted at step 111 on one bit of a coordinate)."""
-    from sdhn_sim.envs import make_env
-    from sdhn_sim.lockstep import LockstepSim, SimConfig
-
-    rt = ActorRuntime.from_file("models/maif-20-sdhn/actor.safetensors")
-    sim = LockstepSim(SimConfig(env="maif-20", seed=11, max_steps=500,
-                                conditions=Conditions(latency=1)))
-    n = sim.num_robots
-    cores = [ActorCore(i, n, True, 11, rt, dead_reckon_grid=64) for i in range(n)]
-    frame = sim.reset()
-    env = ConditionedEnv(make_env("maif-20", num_envs=1, seed=0, max_steps=500,
-                                  instance_order="round_robin", instance_ids=[sim.instance_id]),
-                         Conditions(latency=1))
-    obs, _ = env.reset()
-    h, batch = rt.initial_state(n), DeadReckoner(n, 64)
-    for t in range(150):
+def play_side_by_side(rt: ActorRuntime, sim: Any, cores: list[ActorCore], *, frame: Any,
+                      env: ConditionedEnv, obs: np.ndarray, batch: Any,
+                      robot_id: np.ndarray | None = None, steps: int = 150) -> None:
+    """Up to ``steps`` steps of the lock-step simulator (its frames with ``obs_age``, one actor
+    core per robot) beside the in-process env (one batched reckoner ``batch``), both from their
+    first frame: the same ages and the same greedy actions step for step."""
+    n = len(cores)
+    h = rt.initial_state(n)
+    for t in range(steps):
         assert np.array_equal(frame.obs_age, env.obs_age[0]), t
         want, _, h = rt.act(batch.correct(obs[0], env.obs_age[0]), h, greedy=True,
-                            rng=np.random.default_rng(0))
+                            rng=np.random.default_rng(0), robot_id=robot_id)
         batch.record(want)
         got = []
         for i, c in enumerate(cores):
@@ -176,6 +167,27 @@ def test_lockstep_actors_with_dead_reckoning_act_as_the_in_process_batch() -> No
         obs = env.step(want[None]).obs
         if result is not None:
             break
+
+
+def test_lockstep_actors_with_dead_reckoning_act_as_the_in_process_batch() -> None:
+    """The deployment's path (the lock-step simulator's frames with ``obs_age``, one actor core
+    per robot) and the in-process one (``ConditionedEnv`` and one batched reckoner, as
+    condition_eval runs it) choose the same actions step for step: greedy maif-20 under one
+    step of latency, 150 steps (the two once parted at step 111 on one bit of a coordinate)."""
+    from sdhn_sim.envs import make_env
+    from sdhn_sim.lockstep import LockstepSim, SimConfig
+
+    rt = ActorRuntime.from_file("models/maif-20-sdhn/actor.safetensors")
+    sim = LockstepSim(SimConfig(env="maif-20", seed=11, max_steps=500,
+                                conditions=Conditions(latency=1)))
+    n = sim.num_robots
+    cores = [ActorCore(i, n, True, 11, rt, reckoner=DeadReckoner(1, 64)) for i in range(n)]
+    frame = sim.reset()
+    env = ConditionedEnv(make_env("maif-20", num_envs=1, seed=0, max_steps=500,
+                                  instance_order="round_robin", instance_ids=[sim.instance_id]),
+                         Conditions(latency=1))
+    obs, _ = env.reset()
+    play_side_by_side(rt, sim, cores, frame=frame, env=env, obs=obs, batch=DeadReckoner(n, 64))
     assert sum(c.reckoned for c in cores) > 100  # the rule did move observations
 
 
@@ -199,24 +211,8 @@ def test_lockstep_rware_actors_with_dead_reckoning_act_as_the_in_process_batch()
     env = ConditionedEnv(inner, Conditions(latency=1))
     obs, _ = env.reset()
     assert np.array_equal(frame.obs, obs[0])  # the same warehouse
-    h, batch = rt.initial_state(n), RwareDeadReckoner(n, inner.layout)
-    for t in range(150):
-        assert np.array_equal(frame.obs_age, env.obs_age[0]), t
-        want, _, h = rt.act(batch.correct(obs[0], env.obs_age[0]), h, greedy=True,
-                            rng=np.random.default_rng(0), robot_id=np.arange(n))
-        batch.record(want)
-        got = []
-        for i, c in enumerate(cores):
-            out = c.on_obs(frame.episode, frame.step, i, n, frame.obs[i],
-                           obs_age=int(frame.obs_age[i]))
-            assert isinstance(out, Decision)
-            got.append(out.action)
-            sim.submit(i, frame.episode, frame.step, out.action, 1)
-        assert got == want.tolist(), t
-        frame, result = sim.advance()
-        obs = env.step(want[None]).obs
-        if result is not None:
-            break
+    play_side_by_side(rt, sim, cores, frame=frame, env=env, obs=obs,
+                      batch=RwareDeadReckoner(n, inner.layout), robot_id=np.arange(n))
     assert sum(c.reckoned for c in cores) > 100
 
 

@@ -153,7 +153,7 @@ def test_dead_reckoning_removes_most_of_a_lone_robots_latency_cost() -> None:
 def test_actor_core_applies_dead_reckoning_to_a_stale_observation() -> None:
     rt = ActorRuntime.from_file("models/maif-tiny-sdhn/actor.safetensors")
     plain = ActorCore(0, 4, greedy=True, seed=0, runtime=rt)
-    reck = ActorCore(0, 4, greedy=True, seed=0, runtime=rt, dead_reckon_grid=12)
+    reck = ActorCore(0, 4, greedy=True, seed=0, runtime=rt, reckoner=DeadReckoner(1, 12))
     env = MaifEnv(load_instances("maif-tiny"), num_envs=1, seed=0)
     obs, _ = env.reset(seed=0)
     o = obs[0, 0]

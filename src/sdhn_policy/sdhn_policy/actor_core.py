@@ -6,8 +6,8 @@ in at the next observation, so one step always runs on one set of weights, and t
 the version that produced it. The GRU state goes back to zeros when a new episode starts
 (step 0 or a different episode counter). NumPy only: importing this never imports torch.
 
-Dead reckoning (``reckoner``: ``sdhn_policy.dead_reckoning.reckoner_for(env)``, MAIF or RWARE;
-``dead_reckon_grid`` is the MAIF rule by grid size): the core keeps the step each recorded action
+Dead reckoning (``reckoner``: ``sdhn_policy.dead_reckoning.reckoner_for(env)``, MAIF or RWARE,
+for one row): the core keeps the step each recorded action
 answered, so an observation ``obs_age`` steps behind this robot's own actions
 (``RobotObservation.obs_age``) is moved forward by exactly the actions it sent for steps
 ``step - obs_age .. step - 1``: steps it skipped or never answered (realtime clock, a restart
@@ -35,7 +35,7 @@ from sdhn_policy.actor_runtime import (
     PolicyOutputError,
     check_temperature,
 )
-from sdhn_policy.dead_reckoning import DeadReckoner, Reckoner
+from sdhn_policy.dead_reckoning import Reckoner
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
 from sdhn_sim.envs.maif import OBS_SIZE as MAIF_OBS_SIZE
@@ -89,21 +89,18 @@ class ActorCore:
                  runtime: ActorRuntime | None = None, *,
                  runtime_cls: type[ActorRuntime] = ActorRuntime,
                  temperature: float = 1.0, stall_rule: StallRule | None = None,
-                 skip_ahead: bool = False, dead_reckon_grid: int = 0,
-                 reckoner: Reckoner | None = None) -> None:
+                 skip_ahead: bool = False, reckoner: Reckoner | None = None) -> None:
         self.robot_id = robot_id
         # Realtime clock: the world steps on without this robot, so a later step of the episode
         # is taken (the GRU goes on from the last observation it saw); counted in ``skipped``.
         self.skip_ahead = skip_ahead
         self.skipped = 0  # steps of an episode never seen between two answered ones
         # under observation latency: move a stale observation forward by the actions sent
-        # since (sdhn_policy.dead_reckoning); a rule for one row, or the MAIF grid's size
-        if reckoner is not None and (reckoner.rows != 1 or dead_reckon_grid):
-            raise ValueError("dead reckoning: one rule for one robot (rows 1), either reckoner "
-                             "or dead_reckon_grid")
-        self.reckoner: Reckoner | None = (
-            reckoner if reckoner is not None
-            else DeadReckoner(1, dead_reckon_grid) if dead_reckon_grid else None)
+        # since (sdhn_policy.dead_reckoning); a rule for one row
+        if reckoner is not None and reckoner.rows != 1:
+            raise ValueError(f"dead reckoning: one rule for one robot (rows 1), got rows "
+                             f"{reckoner.rows}")
+        self.reckoner = reckoner
         # the step each action recorded in the reckoner answered, newest last (this episode)
         self._sent_steps: deque[int] = deque(
             maxlen=self.reckoner.horizon if self.reckoner is not None else 1)

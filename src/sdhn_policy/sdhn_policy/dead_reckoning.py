@@ -50,7 +50,7 @@ the floor.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 
 import numpy as np
 import numpy.typing as npt
@@ -69,7 +69,14 @@ from sdhn_sim.envs.rware_batched import (
 
 OBSTACLE = 1.0
 HORIZON = 8  # unseen actions taken at most (an older observation moves by the last HORIZON)
-Rows = slice | Sequence[int] | Iterable[int] | None
+Rows = slice | Iterable[int] | None
+
+
+def select(rows: Rows) -> slice | npt.NDArray[np.intp]:
+    """An index for ``rows`` (None: every row)."""
+    if rows is None:
+        return slice(None)
+    return rows if isinstance(rows, slice) else np.asarray(list(rows), dtype=np.intp)
 
 
 class ActionHistory:
@@ -84,9 +91,7 @@ class ActionHistory:
         self._count = np.zeros(rows, dtype=np.int64)  # actions recorded this episode
 
     def reset(self, rows: Rows = None) -> None:
-        sel: slice | npt.NDArray[np.intp] = (
-            slice(None) if rows is None else rows if isinstance(rows, slice)
-            else np.asarray(list(rows), dtype=np.intp))
+        sel = select(rows)
         self._sent[sel] = 0
         self._count[sel] = 0
 
@@ -228,24 +233,26 @@ class RwareDeadReckoner(Reckoner):
 
     def reset(self, rows: Rows = None) -> None:
         super().reset(rows)
-        sel: slice | npt.NDArray[np.intp] = (
-            slice(None) if rows is None else rows if isinstance(rows, slice)
-            else np.asarray(list(rows), dtype=np.intp))
+        sel = select(rows)
         self._shelf[sel] = self._plan[sel]
         self._req[sel] = False
         self._seen_at[sel] = -1
 
-    def _window(self, o: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.intp], ...]:
-        """(row, window y, window x, grid y, grid x) of every window cell on the grid."""
-        n, side, r = o.shape[0], self.side, self.radius
+    def _cells(self, x: npt.NDArray[np.int64],
+               y: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.intp], ...]:
+        """(row, window y, window x, grid y, grid x) of every cell on the grid of the windows
+        around (x, y) [rows]."""
+        n, side = x.shape[0], self.side
         h, w = self._highway.shape
-        x = np.rint(o[:, 0]).astype(np.int64)
-        y = np.rint(o[:, 1]).astype(np.int64)
-        off = np.arange(side) - r
+        off = np.arange(side) - self.radius
         gy = np.broadcast_to(y[:, None, None] + off[None, :, None], (n, side, side))
         gx = np.broadcast_to(x[:, None, None] + off[None, None, :], (n, side, side))
         ri, wy, wx = np.nonzero((gy >= 0) & (gy < h) & (gx >= 0) & (gx < w))
         return ri, wy, wx, gy[ri, wy, wx], gx[ri, wy, wx]
+
+    def _window(self, o: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.intp], ...]:
+        """``_cells`` of the windows the observations ``o`` show."""
+        return self._cells(np.rint(o[:, 0]).astype(np.int64), np.rint(o[:, 1]).astype(np.int64))
 
     def correct(self, obs: npt.ArrayLike, age: npt.ArrayLike) -> npt.NDArray[np.float32]:
         """Observations [rows, D] received ``age`` [rows] steps old -> predicted current ones.
@@ -333,9 +340,7 @@ class RwareDeadReckoner(Reckoner):
                 robot: npt.NDArray[np.int64]) -> npt.NDArray[np.float32]:
         """rware's flattened observation of a robot at (x, y) with this heading and load, on a
         floor of these shelves, requests and other robots."""
-        n = x.shape[0]
-        h, w = self._highway.shape
-        r, side = self.radius, self.side
+        n, side = x.shape[0], self.side
         k = np.arange(n)
         out = np.zeros((n, self.obs_size), dtype=np.float32)
         out[:, 0], out[:, 1], out[:, 2] = x, y, load
@@ -343,13 +348,8 @@ class RwareDeadReckoner(Reckoner):
         out[:, 7] = self._highway[y, x]
         robot = robot.copy()
         robot[k, y, x] = 1 + head
-        off = np.arange(side) - r
-        gy = np.broadcast_to(y[:, None, None] + off[None, :, None], (n, side, side))
-        gx = np.broadcast_to(x[:, None, None] + off[None, None, :], (n, side, side))
-        inside = (gy >= 0) & (gy < h) & (gx >= 0) & (gx < w)
         cells = np.broadcast_to(_EMPTY_CELL, (n, side, side, RWARE_CELL)).copy()
-        ri, wy, wx = np.nonzero(inside)
-        cy, cx = gy[ri, wy, wx], gx[ri, wy, wx]
+        ri, wy, wx, cy, cx = self._cells(x, y)
         rb = robot[ri, cy, cx]
         c = cells[ri, wy, wx]
         c[:, 0] = rb > 0

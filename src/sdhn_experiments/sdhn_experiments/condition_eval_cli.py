@@ -105,16 +105,19 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(out) + "\n"
 
 
+def _card_env(model: Path) -> str | None:
+    """The task a model directory's card names (None without a card)."""
+    card = model / "card.json"
+    return json.loads(card.read_text())["env"] if card.is_file() else None
+
+
 def _rware_task(model: Path, task: str | None) -> str | None:
     """The RWARE task a model plays (``scripted:TASK``, or its card's env), None for MAIF."""
-    import json
-
     from sdhn_sim.envs.registry import RWARE_TASKS
 
     if str(model).startswith("scripted:"):
         return str(model).split(":", 1)[1]
-    card = model / "card.json"
-    env = task or (json.loads(card.read_text())["env"] if card.is_file() else None)
+    env = task or _card_env(model)
     return env if env in RWARE_TASKS else None
 
 
@@ -272,11 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     if rware:
         return _rware_main(args, rware, plan, reckon, len(rware) == len(args.models))
     for model in args.models:
-        card_task = None
-        card = model / "card.json"
-        if card.is_file():
-            card_task = json.loads(card.read_text())["env"]
-        task = args.task or card_task
+        task = args.task or _card_env(model)
         if task not in MAIF_CONFIGS:
             print(f"eval_conditions: --task: {task!r} is not a MAIF task; allowed: "
                   f"{', '.join(MAIF_CONFIGS)}", file=sys.stderr)
@@ -314,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
                         write_json(args.out, rows)
     if args.planner:
         tasks = [args.task] if args.task else list(dict.fromkeys(
-            json.loads((m / "card.json").read_text())["env"] for m in args.models))
+            str(_card_env(m)) for m in args.models))
         try:
             rows += reference_rows(tasks, plan, reckon, args)
         except PlannerError as e:

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
+from sdhn_base.ros.graph import check_message_type
 from sdhn_sim.recording.reader import decode, read_recording
 from sdhn_sim.sim_node import PARAMETERS
 
@@ -76,6 +77,13 @@ def test_topic_list_and_info_match_the_publishers(graph: Any) -> None:
     assert f"{NOTE} [std_msgs/msg/String]" in listed.splitlines(), listed
     assert f"{NS}/robot_0/obs [sdhn_msgs/msg/RobotObservation]" in listed.splitlines(), listed
     assert not any("_ros2cli" in line for line in listed.splitlines())
+    # Every type this graph carries (ours, /rosout, /parameter_events, /diagnostics, poses) is
+    # one that echo and hz accept: the allowlist of message packages covers the real graph.
+    listed_types = {t.strip() for line in listed.splitlines()
+                    for t in line.partition(" [")[2].rstrip("]").split(",")}
+    assert {"rcl_interfaces/msg/Log", "geometry_msgs/msg/PoseArray"} <= listed_types, listed
+    for type_name in listed_types:
+        check_message_type(type_name)
     # -c counts what list prints (the graph is stable; a call may see it only partly at first).
     count = ros2_until(f"{len(listed.splitlines())}\n", "topic", "list", "-c")
     assert count.strip() == str(len(listed.splitlines())), (count, listed)

@@ -30,7 +30,13 @@ from rclpy.qos import (
 )
 from rclpy.serialization import deserialize_message
 
-from sdhn_base.ros.graph import DEFAULT_SPIN_TIME_S, GraphNode, absolute_name, message_class
+from sdhn_base.ros.graph import (
+    DEFAULT_SPIN_TIME_S,
+    GraphNode,
+    absolute_name,
+    check_message_type,
+    message_class,
+)
 from sdhn_bringup.ros2_yaml import DEFAULT_TRUNCATE, convert, field_value, to_yaml
 
 RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE, "best_effort": ReliabilityPolicy.BEST_EFFORT,
@@ -81,6 +87,13 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     args = parser().parse_args(argv)
+    if args.verb == "echo" and args.message_type is not None:
+        # The command line is checked before a node starts: a refused type imports nothing.
+        try:
+            check_message_type(args.message_type, "message_type")
+        except ValueError as e:
+            print(f"ros2 topic echo: error: {e}", file=sys.stderr)
+            return 2
     with GraphNode(args.spin_time) as g:
         if args.verb == "list":
             return topic_list(g, args)
@@ -254,8 +267,13 @@ def hz(g: GraphNode, topic: str, window: int) -> int:
             types = topic_types(g, topic, wait=False)
         if not types:
             return 0
+    try:  # the type any publisher advertised: one of ours, or refused in one line
+        cls = message_class(types[0])
+    except ValueError as e:
+        print(f"ros2 topic hz: {e}", file=sys.stderr)
+        return 1
     rates = RateWindow(window)
-    g.node.create_subscription(message_class(types[0]), topic,
+    g.node.create_subscription(cls, topic,
                                lambda _data: rates.add(time.monotonic()),
                                choose_qos(g, topic, None, None, None), raw=True)
     while g.context.ok():

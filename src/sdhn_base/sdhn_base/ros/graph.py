@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 import time
 from collections.abc import Callable
 from types import TracebackType
@@ -85,21 +86,52 @@ class GraphNode:
         rclpy.try_shutdown(context=self.context)
 
 
-def message_class(type_name: str) -> Any:
-    """The Python class of ``pkg/msg/Type`` (or ``pkg/Type``), as rosidl_runtime_py's
-    ``get_message`` finds it; ValueError with one line if the install has no such type."""
+# The interface packages whose messages this project's graphs carry: ours, the standard streams
+# our nodes publish beside them (geometry_msgs poses and target poses, diagnostic_msgs
+# /diagnostics, lifecycle_msgs transition events of managed actors), /rosout and
+# /parameter_events that every rclpy node has (rcl_interfaces), and std_msgs. A type name comes
+# from the command line or from the graph, where any participant may advertise any name: it only
+# ever selects one of these, so outside input never decides which module is imported.
+GRAPH_MESSAGE_PACKAGES = ("sdhn_msgs", "std_msgs", "geometry_msgs", "diagnostic_msgs",
+                          "lifecycle_msgs", "rcl_interfaces")
+# ROS 2 interface naming rules (REP 144 packages, CamelCase types).
+_PACKAGE = re.compile(r"[a-z][a-z0-9_]*")
+_TYPE = re.compile(r"[A-Z][A-Za-z0-9]*")
+
+
+def check_message_type(type_name: str, field: str = "message type") -> tuple[str, str]:
+    """('pkg', 'Type') of ``pkg/msg/Type`` (or ``pkg/Type``) whose package is one of
+    :data:`GRAPH_MESSAGE_PACKAGES`; ValueError with one line naming ``field``, the value and
+    what is allowed otherwise. Imports nothing."""
     parts = type_name.split("/")
     if len(parts) == 2:
         parts = [parts[0], "msg", parts[1]]
-    # The name comes from the graph or the command line: import only a package's ``msg``
-    # interfaces module, never an arbitrary module path.
-    if len(parts) != 3 or parts[1] != "msg" or not all(p.isidentifier() for p in parts):
-        raise ValueError(f"message type: {type_name!r}; expected pkg/msg/Type")
+    if (len(parts) != 3 or parts[1] != "msg" or not _PACKAGE.fullmatch(parts[0])
+            or not _TYPE.fullmatch(parts[2])):
+        raise ValueError(f"{field}: {type_name!r} is not a message type; expected pkg/msg/Type")
+    if parts[0] not in GRAPH_MESSAGE_PACKAGES:
+        raise ValueError(f"{field}: {type_name!r} is in package {parts[0]!r}, not one this "
+                         f"project's graphs carry; allowed: {', '.join(GRAPH_MESSAGE_PACKAGES)}")
+    return parts[0], parts[2]
+
+
+def message_class(type_name: str, field: str = "message type") -> Any:
+    """The Python class of ``pkg/msg/Type`` (or ``pkg/Type``) in one of
+    :data:`GRAPH_MESSAGE_PACKAGES`, as rosidl_runtime_py's ``get_message`` finds it; ValueError
+    with one line for a name :func:`check_message_type` refuses (before any import) or a type
+    the install does not have."""
+    package, name = check_message_type(type_name, field)
+    # The module name is the allowlist's own string, never one built from the input.
+    allowed = GRAPH_MESSAGE_PACKAGES[GRAPH_MESSAGE_PACKAGES.index(package)]
     try:
-        module = importlib.import_module(f"{parts[0]}.{parts[1]}")
-        return getattr(module, parts[2])
-    except (ImportError, AttributeError) as e:
-        raise ValueError(f"message type {type_name!r} is not installed here") from e
+        module = importlib.import_module(f"{allowed}.msg")
+    except ImportError as e:
+        raise ValueError(f"{field}: {type_name!r} is not installed here") from e
+    cls = getattr(module, name, None)
+    if not isinstance(cls, type):
+        raise ValueError(f"{field}: {type_name!r} is not installed here ({allowed} has no "
+                         f"message {name!r})")
+    return cls
 
 
 def absolute_name(name: str) -> str:

@@ -62,6 +62,7 @@ from sdhn_base.ros.qos import LATCHED, POSES, STEP, STEP_NEWEST
 from sdhn_base.ros.runner import ConfigError, run_node
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
+from sdhn_policy.dead_reckoning import Reckoner
 from sdhn_policy.stall_breaker import StallRule
 from sdhn_policy.weights import WeightsError
 from sdhn_sim.envs.registry import env_names
@@ -133,15 +134,16 @@ class ActorNode(LifecycleNode):
         if p["env"] and self.target is None:
             raise ConfigError(f"env: unknown {p['env']!r}; allowed: '' or one of "
                               f"{', '.join(env_names())}")
-        self.reckon = False  # dead reckoning: each core gets the env's rule
+        # Dead reckoning: the env's rule, built once here (an RWARE rule builds the warehouse to
+        # read its layout) and handed to each core this node loads; one core at a time.
+        self.reckoner: Reckoner | None = None
         if p["dead_reckoning"]:
             from sdhn_policy.dead_reckoning import reckoner_for
             try:
-                reckoner_for(p["env"])
+                self.reckoner = reckoner_for(p["env"])
             except ValueError as e:
                 raise ConfigError(f"dead_reckoning: needs env to name the grid or warehouse; "
                                   f"{e}") from None
-            self.reckon = True
         self.params: dict[str, Any] = p
         try:
             self.runtime_cls = runtime_class(p["backend"])
@@ -185,14 +187,16 @@ class ActorNode(LifecycleNode):
 
     def load_core(self) -> ActorCore:
         """The policy state machine with ``weights_file`` loaded (WeightsError if it is bad)."""
-        from sdhn_policy.dead_reckoning import reckoner_for
-
         p, weights_file = self.params, self.params["weights_file"]
         runtime = runtime_from_file(p["backend"], weights_file) if weights_file else None
+        if self.reckoner is not None:
+            # as newly built: a core loaded again after cleanup keeps nothing of the episode
+            # the previous core reckoned
+            self.reckoner.reset()
         return ActorCore(self.robot_id, p["num_robots"], p["greedy"], p["seed"], runtime,
                          runtime_cls=self.runtime_cls, temperature=p["temperature"],
                          stall_rule=self.stall_rule, skip_ahead=p["realtime"],
-                         reckoner=reckoner_for(p["env"]) if self.reckon else None)
+                         reckoner=self.reckoner)
 
     def weights_error(self, e: WeightsError) -> str:
         return f"weights_file: {self.params['weights_file']}: {e.reason}; {WEIGHTS_ALLOWED}"
@@ -369,7 +373,7 @@ class ActorNode(LifecycleNode):
         }
         if self.params["realtime"]:
             values["skipped_steps"] = self.core.skipped if self.core is not None else 0
-        if self.reckon:  # observations moved forward by this robot's unseen actions
+        if self.reckoner is not None:  # observations moved forward by this robot's unseen actions
             values["dead_reckoned"] = self.core.reckoned if self.core is not None else 0
         values |= drop_values(self.drops, self._drops_window.new(self.drops))
         waiting = self.phase == "active" and self.obs_sub is None

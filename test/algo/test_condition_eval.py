@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from sdhn_experiments.condition_eval import (
     card_mode,
     evaluate_planner_under,
     evaluate_under,
+    mean_ci,
     relaxed_bound_under,
     summarise_under,
 )
@@ -183,3 +185,40 @@ def test_an_rware_model_plays_another_team_size_with_its_ids_moved() -> None:
     res = play_rware(make, "rware-6", Conditions(), episodes=2, seed=1_000_000, max_steps=200)
     assert name == "rware-3-mappo" and len(res.deliveries) == 2
     assert sum(res.deliveries) > 0  # measured: 42.4 per 500-step episode over 20
+
+
+def _summaries_with_deliveries(node: object) -> list[dict[str, Any]]:
+    if isinstance(node, dict):
+        own = [node] if "deliveries_ci95" in node and "deliveries" in node else []
+        return own + [s for v in node.values() for s in _summaries_with_deliveries(v)]
+    if isinstance(node, list):
+        return [s for v in node for s in _summaries_with_deliveries(v)]
+    return []
+
+
+@pytest.mark.parametrize("name", ["rware-latency.json", "team-size.json"])
+def test_published_rware_intervals_are_the_one_bootstrap_of_their_episodes(name: str) -> None:
+    """Every RWARE deliveries interval under docs/results is ``mean_ci`` (the bootstrap the MAIF
+    makespans use) of the episodes stored beside it, to the 0.1 delivery the tables print
+    (written by a separate bootstrap of the same resamples before; the ends moved by < 1e-12)."""
+    from sdhn_experiments.rware_conditions import RwareResult
+
+    path = Path(__file__).resolve().parents[2] / "docs" / "results" / "conditions" / name
+    found = _summaries_with_deliveries(json.loads(path.read_text()))
+    assert found, path
+    for s in found:
+        got = RwareResult(s["deliveries"]).summary()
+        assert got["deliveries_mean"] == pytest.approx(s["deliveries_mean"], abs=1e-9)
+        assert list(got["deliveries_ci95"]) == pytest.approx(s["deliveries_ci95"], abs=1e-9), s
+        assert got["deliveries_ci95"] == mean_ci(s["deliveries"])[1]
+
+
+def test_the_mean_interval_lies_within_the_episodes() -> None:
+    rng = np.random.default_rng(3)
+    for n in (2, 5, 20):
+        x = rng.integers(0, 40, n).tolist()
+        mean, ci = mean_ci(x)
+        assert ci is not None and mean is not None
+        assert min(x) <= ci[0] <= mean <= ci[1] <= max(x), (x, ci)
+    assert mean_ci([7, 7, 7]) == (7.0, (7.0, 7.0)) and mean_ci([4]) == (4.0, (4.0, 4.0))
+    assert mean_ci([]) == (None, None)

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from sdhn_experiments.condition_eval import mean_ci
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.dead_reckoning import RwareDeadReckoner
 from sdhn_policy.team_size import for_team
@@ -90,20 +91,10 @@ class RwareResult:
     mechanism: Mechanism = field(default_factory=Mechanism)
 
     def summary(self) -> dict[str, Any]:
-        d = np.asarray(self.deliveries, dtype=np.float64)
-        return {"episodes": len(d), "deliveries_mean": float(d.mean()),
-                "deliveries_ci95": bootstrap_mean_ci(d), "deliveries": self.deliveries,
+        mean, ci = mean_ci(self.deliveries)
+        return {"episodes": len(self.deliveries), "deliveries_mean": mean,
+                "deliveries_ci95": ci, "deliveries": self.deliveries,
                 "mechanism": asdict(self.mechanism), "rates": self.mechanism.rates()}
-
-
-def bootstrap_mean_ci(x: npt.ArrayLike, seed: int = 0) -> tuple[float, float]:
-    """95 % percentile bootstrap interval of the mean over episodes."""
-    a = np.asarray(x, dtype=np.float64)
-    if len(a) < 2 or np.all(a == a[0]):
-        return float(a.mean()), float(a.mean())
-    rng = np.random.default_rng(seed)
-    means = a[rng.integers(0, len(a), (5000, len(a)))].mean(axis=1)
-    return float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))
 
 
 def learned(rt: ActorRuntime, num_envs: int, num_robots: int, *, greedy: bool = True,

@@ -64,13 +64,16 @@ class ArrivalProbe:
     one_away: dict[str, Tally] = field(default_factory=lambda: {s: Tally() for s in SIDES})
     completed: int = 0
 
+    def any_side(self) -> Tally:
+        """One cell from a free goal, whichever side it lies on."""
+        return Tally(sum(t.count for t in self.one_away.values()),
+                     sum(t.total for t in self.one_away.values()))
+
     def summary(self) -> dict[str, object]:
         d = asdict(self)
         d["on_goal"] = {"robot_steps": self.on_goal.count, "p_stay": self.on_goal.mean}
-        everyone = Tally(sum(t.count for t in self.one_away.values()),
-                         sum(t.total for t in self.one_away.values()))
         d["one_away"] = {side: {"robot_steps": t.count, "p_onto_goal": t.mean}
-                         for side, t in {**self.one_away, "all": everyone}.items()}
+                         for side, t in {**self.one_away, "all": self.any_side()}.items()}
         return d
 
 
@@ -95,7 +98,6 @@ def probe(policy: ActorRuntime, task: str, which: str = "heldout", *, instances:
     rng = np.random.default_rng(seed)
     out = ArrivalProbe(task, which, b, steps, t)
     live = np.ones(b, dtype=bool)
-    rows = np.arange(b * n)
     for _ in range(steps):
         logits, h = policy.step(obs.reshape(b * n, -1), h, ids)
         logp = log_softmax(logits)
@@ -111,10 +113,8 @@ def probe(policy: ActorRuntime, task: str, which: str = "heldout", *, instances:
         out.on_goal.add(p[on, STAY])
         near = ((dist == 1) & goal_free & counted).ravel()
         dx, dy = d[..., 0].ravel(), d[..., 1].ravel()
-        for side, action, where in (("up", SIDES["up"], dy < 0), ("down", SIDES["down"], dy > 0),
-                                    ("left", SIDES["left"], dx < 0),
-                                    ("right", SIDES["right"], dx > 0)):
-            out.one_away[side].add(p[rows[near & where], action])
+        for side, where in (("up", dy < 0), ("down", dy > 0), ("left", dx < 0), ("right", dx > 0)):
+            out.one_away[side].add(p[near & where, SIDES[side]])
         act = choose_actions(logp, False, rng, t)
         res = env.step(act.reshape(b, n))
         for ep in res.episodes:
@@ -128,24 +128,15 @@ def probe(policy: ActorRuntime, task: str, which: str = "heldout", *, instances:
 
 
 def table(p: ArrivalProbe) -> str:
-    s = p.summary()
-    on = s["on_goal"]
-    assert isinstance(on, dict)
+    rows = [("on its goal: stays", p.on_goal),
+            *((f"goal one cell {side}, free: steps onto it", t) for side, t in p.one_away.items()),
+            ("one cell from a free goal (any side)", p.any_side())]
     lines = [f"{p.task}/{p.set}, {p.instances} instances, {p.steps} steps, sampled at "
              f"T={p.temperature:g}: {p.completed} completed",
-             "| where | robot-steps | probability |", "|---|---|---|",
-             f"| on its goal: stays | {on['robot_steps']} | {_fmt(on['p_stay'])} |"]
-    one = s["one_away"]
-    assert isinstance(one, dict)
-    for side, v in one.items():
-        label = "one cell from a free goal (any side)" if side == "all" else \
-            f"goal one cell {side}, free: steps onto it"
-        lines.append(f"| {label} | {v['robot_steps']} | {_fmt(v['p_onto_goal'])} |")
+             "| where | robot-steps | probability |", "|---|---|---|"]
+    lines += [f"| {label} | {t.count} | {'—' if t.mean is None else f'{t.mean:.3f}'} |"
+              for label, t in rows]
     return "\n".join(lines)
-
-
-def _fmt(x: object) -> str:
-    return "—" if x is None else f"{x:.3f}"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -299,7 +299,11 @@ class SimNode(Node):
                 self.send_observation(frame, i, now)
         self.get_logger().info(f"first step: no answer yet from robots {silent}; re-sent")
         self.deadline = time.monotonic() + self.cfg.step_deadline
-        self.resend_at = time.monotonic() + min(self.cfg.step_deadline, HANDSHAKE_RESEND_S)
+        self.resend_at = self.next_resend()
+
+    def next_resend(self) -> float:
+        """When the start handshake next re-sends the first step to the silent robots."""
+        return time.monotonic() + min(self.cfg.step_deadline, HANDSHAKE_RESEND_S)
 
     def start_realtime(self) -> None:
         """End of the start handshake: step 0 now, then every 1 / rate_hz seconds."""
@@ -357,8 +361,7 @@ class SimNode(Node):
             self.publish_poses(f, Time(sec=sec, nanosec=nanosec))
         self.deadline = (float("inf") if f.done or (self.cfg.realtime and not self.handshake)
                          else time.monotonic() + self.cfg.step_deadline)
-        self.resend_at = (time.monotonic() + min(self.cfg.step_deadline, HANDSHAKE_RESEND_S)
-                          if self.handshake and not f.done else float("inf"))
+        self.resend_at = self.next_resend() if self.handshake and not f.done else float("inf")
 
     def publish_state(self, f: Frame, now_ns: int, send: bool) -> None:
         """TeamState of frame f: sent when ``send``, recorded when recording."""

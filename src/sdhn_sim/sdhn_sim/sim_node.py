@@ -503,7 +503,7 @@ class SimNode(Node):
         self.deadline = float("inf")
         self.episode_pub.wait_for_all_acked(Duration(seconds=2))
         # run_node's own stop path (flag set by its SIGTERM handler): the spin loop ends, on_stop
-        # runs, the node is destroyed; main() then returns exit_code.
+        # runs, the process ends with exit_code (run_node's EXIT_CODE).
         signal.raise_signal(signal.SIGTERM)
 
 
@@ -518,11 +518,5 @@ def _on_stop(node: Node) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    made: list[SimNode] = []
-
-    def make(context: Context, _args: list[str]) -> SimNode:
-        made.append(SimNode(context))
-        return made[0]
-
-    code = run_node(make, argv, _on_stop)
-    return code or (made[0].exit_code if made else 0)
+    # The exit code is the node's exit_code (run_node's EXIT_CODE) once it ran.
+    return run_node(lambda context, _args: SimNode(context), argv, _on_stop)

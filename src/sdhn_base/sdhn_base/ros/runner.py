@@ -9,22 +9,53 @@ configuration error found while building the node exits with code 2 and one line
 before any topic is created. Once the node is built, the ready file of :mod:`sdhn_base.ros.status`
 is written (when asked for).
 
-Teardown is bounded: once ``on_stop`` has run, destroying the node, shutting the context down and
-leaving the interpreter get :data:`TEARDOWN_S` seconds. Past that, a C-level watchdog
-(``faulthandler``, which needs no GIL, so a DDS deadlock that holds it cannot stop it) prints every
-thread's Python stack and ends the process with exit code 1. Why: a Fast DDS teardown deadlock
-(participant removal racing a departing peer, eProsima/Fast-DDS #6502, #6193) has been seen to keep
-an actor alive after SIGINT, which hangs whoever stops it.
+How the process ends once a node was built and stopped (the loop ended by SIGINT/SIGTERM,
+``context.shutdown()`` or FAILED, with no exception): ``on_stop`` runs and "stopped" is logged,
+then the nodes are destroyed (their publishers, subscriptions and services leave the graph at
+once), the context is shut down (rcl's logging finalised: the ROS log file is complete), the
+non-daemon threads joined, the ``atexit`` handlers run (Python logging's flush; rclpy registers
+none) and stdout/stderr flushed, and the process ends with ``os._exit`` and its exit code. The
+DDS participant is never deleted: a hidden node (``_sdhn_exiting_<pid>``) created for that
+holds it until the process is gone. Why: deleting it can deadlock in Fast DDS 2.14 (eProsima/
+Fast-DDS #6502, #6193). ``destroy_participant`` first sets the participant's listener to null,
+which waits until no discovery callback is in flight, while a UDP receive thread is in one
+(``onWriterDiscovery``: a departing peer's writer removed, e.g. the simulator that has just
+stopped) waiting on a mutex, and the event and shared-memory threads wait on the discovery
+(PDP) mutex. gdb showed actors stuck there about once in ~270 teardowns of the test suite
+(after they had logged "stopped"), ended by the watchdog below with exit code 1: a failed child
+to the launcher. No ordering of ours removes the race (any peer may leave, or be dropped by its
+lease, at any time); not deleting the participant does. Moving the deletion from Fast DDS's
+static destructor at exit into this runner (an earlier fix) had only bounded it.
+
+What that changes: peers drop the participant when its lease ends (Fast DDS's default
+``leaseDuration``, 20 s) instead of on its goodbye, as for a killed process. Until then the
+hidden ``_sdhn_exiting_<pid>`` node (and ``/parameter_events`` writer) is in their graph, not
+the stopped node, whose endpoints were destroyed. The participant's shared-memory segment
+(``/dev/shm/fastrtps_<id>``) is left as a killed process leaves it; the next node's start
+removes it (:func:`sdhn_base.litter.clean_fastdds_shm`). Nothing else is deleted at exit:
+finalizers and destructors do not run, so a node's ``on_stop`` must close what it owns (files,
+recorders, servers, child processes). test/ros/test_node_exit.py holds this.
+
+The other ends keep the previous teardown: a configuration error (exit code 2, the node never
+built), or an exception out of the loop or ``on_stop`` (a traceback, exit code 1) destroy the
+nodes and the context. Teardown is bounded on every path: once ``on_stop`` has run, what
+follows gets :data:`TEARDOWN_S` seconds. Past that, a C-level watchdog (``faulthandler``, which
+needs no GIL, so a DDS deadlock that holds it cannot stop it) prints every thread's Python stack
+and ends the process with exit code 1.
 """
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import faulthandler
 import gc
+import os
 import signal
 import sys
 import threading
 from collections.abc import Callable, Sequence
+from typing import NoReturn
 
 import rclpy
 from rclpy.context import Context
@@ -47,6 +78,9 @@ SPIN_SLICE_S = 0.05
 # A node that cannot go on sets this attribute to a one-line reason: the loop stops, the reason
 # goes to stderr and the exit code is 1 (the launcher reports the child as failed).
 FAILED = "failed_reason"
+# A node may set this integer attribute: the exit code when it stopped without failing (the
+# simulator's: 1 when not every actor matched in time).
+EXIT_CODE = "exit_code"
 TEARDOWN_S = 5.0
 
 
@@ -70,11 +104,15 @@ def run_node(
     on_stop: Callable[[Node], None] | None = None,
 ) -> int:
     """Run one node (or several, on one executor: ``make_node`` may return a sequence, as the
-    actor host does) until SIGINT/SIGTERM or ``context.shutdown()``; returns the exit code.
+    actor host does) until SIGINT/SIGTERM or ``context.shutdown()``, then end the process.
 
     ``make_node`` receives the context and the command-line arguments with ROS arguments removed.
-    ``on_stop`` runs before each node is destroyed (flush files, stop worker threads).
-    It is a process's main: after it returns the process has ``TEARDOWN_S`` seconds to exit.
+    ``on_stop`` runs before each node is destroyed: it must close everything the node owns
+    (files, worker threads, child processes), since no destructor runs after it.
+    It is a process's main. Once a node was built and stopped it does not return: the process
+    ends with exit code 0, a node's :data:`EXIT_CODE`, or 1 (:data:`FAILED`), without deleting
+    the DDS participant (module docstring). It returns 2 on a configuration error found before
+    (the caller exits with it); an exception propagates after the previous teardown.
     """
     args = list(sys.argv if argv is None else argv)
     prog = args[0] if args else "node"
@@ -96,6 +134,8 @@ def run_node(
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
     nodes: list[Node] = []
+    code = 1
+    stopped_cleanly = False  # the loop ended (stop, shutdown or FAILED), no exception
     try:
         try:
             made = make_node(context, rclpy.utilities.remove_ros_args(args)[1:])
@@ -134,8 +174,11 @@ def run_node(
         reason = failed()
         if reason:
             print(f"{prog}: error: {reason}", file=sys.stderr)
-            return 1
-        return 0
+            code = 1
+        else:
+            code = next((c for c in (getattr(n, EXIT_CODE, 0) for n in nodes) if c), 0)
+        stopped_cleanly = True
+        return code
     finally:
         for each in nodes:
             if on_stop is not None:
@@ -143,6 +186,8 @@ def run_node(
             each.get_logger().info("stopped")
         # Not cancelled: it also bounds the interpreter's exit, where rclpy's objects are freed.
         faulthandler.dump_traceback_later(TEARDOWN_S, exit=True)
+        if nodes and stopped_cleanly:
+            _leave_keeping_participant(context, nodes, code)  # does not return
         for each in nodes:
             each.destroy_node()
         rclpy.try_shutdown(context=context)
@@ -153,3 +198,34 @@ def run_node(
         # only happens if a node's rcl node was never finalised (rclpy's LifecycleNode keeps it
         # through its state machine: ActorNode.destroy_node; test/ros/test_actor_teardown.py).
         context.destroy()
+
+
+def _leave_keeping_participant(context: Context, nodes: Sequence[Node], code: int) -> NoReturn:
+    """End the process with ``code`` after its nodes stopped, without deleting the DDS
+    participant (the module docstring says why).
+
+    The nodes are destroyed (their publishers, subscriptions and services leave the graph at
+    once, as before) while a hidden node created here keeps the participant; the context is shut
+    down, which finalises rcl's logging (the ROS log file is complete), but never destroyed.
+    Then what a normal interpreter exit does and needs no DDS: wait for the non-daemon threads,
+    run the ``atexit`` handlers (Python logging's flush; rclpy registers none) and flush stdout
+    and stderr. No finalizer or C++ static destructor runs after that: ``os._exit``.
+    """
+    # Hidden ('_'), one per process, and deaf to the command line's remapping: `__node:=actor_0`
+    # would otherwise give it the stopped node's name, left in the graph until the lease ends.
+    # Held until os._exit: a Node no longer referenced is destroyed, and the participant with it.
+    _holds_participant = Node(f"_sdhn_exiting_{os.getpid()}", context=context,
+                              use_global_arguments=False, start_parameter_services=False,
+                              enable_rosout=False)
+    for each in nodes:
+        each.destroy_node()
+    rclpy.try_shutdown(context=context)
+    main = threading.current_thread()
+    for thread in threading.enumerate():
+        if thread is not main and not thread.daemon:
+            thread.join()  # as the interpreter's exit would; the watchdog bounds it
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # closed or broken: nothing left to say there
+            stream.flush()
+    os._exit(code)

@@ -3,10 +3,10 @@
 Once a node has stopped (on_stop ran, "stopped" logged), the process ends without deleting its
 DDS participant: Fast DDS 2.14 can deadlock there with a departing peer's discovery callback,
 which the teardown watchdog turned into exit code 1 for a node that had stopped cleanly. What a
-normal exit does is still done: non-daemon threads joined, atexit handlers run (buffered Python
-logging flushed), stdout flushed, the ROS log file complete, and the node's endpoints leave the
-graph at once. The exit codes stay: 0 stopped, the node's ``exit_code``, 1 FAILED, 2 a
-configuration error.
+normal exit does is still done: non-daemon threads joined (an idle ThreadPoolExecutor's worker
+told to end), atexit handlers run (buffered Python logging flushed), stdout flushed, the ROS log
+file complete, and the node's endpoints leave the graph at once. The exit codes stay: 0 stopped,
+the node's ``exit_code``, 1 FAILED, 2 a configuration error.
 
 Observable: the participant's shared-memory segment (``/dev/shm/fastrtps_<id>``, which Fast DDS
 unlinks when it deletes the participant) is still there after the process has exited.
@@ -26,6 +26,7 @@ import pytest
 
 PROBE = textwrap.dedent("""
     import logging, logging.handlers, os, sys, threading, time
+    from concurrent.futures import ThreadPoolExecutor
     from pathlib import Path
     from rclpy.node import Node
     from sdhn_base.errors import ConfigError
@@ -54,6 +55,8 @@ PROBE = textwrap.dedent("""
         time.sleep(0.3)
         (out / "thread.done").write_text("done")
 
+    pools = []
+
     def on_stop(node):
         # This participant's own segment: its lock file (..._el) is held open by its owner.
         held = [os.readlink(f) for f in Path("/proc/self/fd").iterdir() if f.is_symlink()]
@@ -63,6 +66,10 @@ PROBE = textwrap.dedent("""
         print("on_stop: not flushed here")  # stdout is a pipe: block-buffered
         log.info("closed")
         threading.Thread(target=late_write).start()  # not a daemon: the exit waits for it
+        # Never shut down: the interpreter's exit tells its idle worker to end; a plain join of
+        # the non-daemon threads would wait for it forever.
+        pools.append(ThreadPoolExecutor(1))  # referenced: its worker stays
+        pools[0].submit(lambda: None).result()
 
     sys.exit(run_node(lambda context, _args: Probe(context), ["probe", "--ros-args", "-r",
                       f"__ns:={sys.argv[3]}"], on_stop))

@@ -207,9 +207,10 @@ def _leave_keeping_participant(context: Context, nodes: Sequence[Node], code: in
     The nodes are destroyed (their publishers, subscriptions and services leave the graph at
     once, as before) while a hidden node created here keeps the participant; the context is shut
     down, which finalises rcl's logging (the ROS log file is complete), but never destroyed.
-    Then what a normal interpreter exit does and needs no DDS: wait for the non-daemon threads,
-    run the ``atexit`` handlers (Python logging's flush; rclpy registers none) and flush stdout
-    and stderr. No finalizer or C++ static destructor runs after that: ``os._exit``.
+    Then what a normal interpreter exit does and needs no DDS: ``threading``'s shutdown (its exit
+    hooks, then the non-daemon threads joined), the ``atexit`` handlers (Python logging's flush;
+    rclpy registers none), stdout and stderr flushed. No finalizer or C++ static destructor runs
+    after that: ``os._exit``.
     """
     # Hidden ('_'), one per process, and deaf to the command line's remapping: `__node:=actor_0`
     # would otherwise give it the stopped node's name, left in the graph until the lease ends.
@@ -220,10 +221,9 @@ def _leave_keeping_participant(context: Context, nodes: Sequence[Node], code: in
     for each in nodes:
         each.destroy_node()
     rclpy.try_shutdown(context=context)
-    main = threading.current_thread()
-    for thread in threading.enumerate():
-        if thread is not main and not thread.daemon:
-            thread.join()  # as the interpreter's exit would; the watchdog bounds it
+    # The interpreter's own first step at exit: threading's exit hooks (a ThreadPoolExecutor's
+    # workers told to end), then every non-daemon thread joined; the watchdog bounds it.
+    threading._shutdown()  # type: ignore[attr-defined]
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):  # closed or broken: nothing left to say there

@@ -49,6 +49,8 @@ PROBE = textwrap.dedent("""
                 self.create_timer(0.3, lambda: setattr(self, "failed_reason", "probe failed"))
             if mode == "code3":
                 self.exit_code = 3
+            if mode == "shutdown":  # a stop from inside, as the docstring of run_node allows
+                self.create_timer(0.3, context.try_shutdown)
             print("up", flush=True)
 
     def late_write():
@@ -156,6 +158,7 @@ def test_a_stopped_node_exits_0_complete_and_leaves_the_graph_keeping_its_partic
 
 @pytest.mark.parametrize(("mode", "code", "line"), [
     ("code3", 3, None),
+    ("shutdown", 0, None),
     ("failed", 1, "probe: error: probe failed"),
 ])
 def test_exit_codes_of_a_built_node_are_kept(tmp_path: Path, mode: str, code: int,
@@ -163,7 +166,7 @@ def test_exit_codes_of_a_built_node_are_kept(tmp_path: Path, mode: str, code: in
     proc, out = start(tmp_path, mode, f"/sdhn_exit_{mode}_{os.getpid()}")
     try:
         wait_up(proc)
-        if mode == "failed":
+        if mode in ("failed", "shutdown"):
             stdout, stderr = proc.communicate(timeout=60)  # it stops itself
         else:
             stdout, stderr = stop(proc)

@@ -16,7 +16,8 @@ once), the context is shut down (rcl's logging finalised: the ROS log file is co
 non-daemon threads joined, the ``atexit`` handlers run (Python logging's flush; rclpy registers
 none) and stdout/stderr flushed, and the process ends with ``os._exit`` and its exit code. The
 DDS participant is never deleted: a hidden node (``_sdhn_exiting_<pid>``) created for that
-holds it until the process is gone. Why: deleting it can deadlock in Fast DDS 2.14 (eProsima/
+holds it until the process is gone (after a ``context.shutdown()`` no node can be created, so the
+stopped nodes are left undestroyed too). Why: deleting it can deadlock in Fast DDS 2.14 (eProsima/
 Fast-DDS #6502, #6193). ``destroy_participant`` first sets the participant's listener to null,
 which waits until no discovery callback is in flight, while a UDP receive thread is in one
 (``onWriterDiscovery``: a departing peer's writer removed, e.g. the simulator that has just
@@ -59,6 +60,7 @@ from typing import NoReturn
 
 import rclpy
 from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -168,7 +170,10 @@ def run_node(
 
         try:
             while context.ok() and not stop.is_set() and not failed():
-                executor.spin_once(timeout_sec=SPIN_SLICE_S)
+                try:
+                    executor.spin_once(timeout_sec=SPIN_SLICE_S)
+                except ExternalShutdownException:
+                    break  # context.shutdown() in a callback: a stop, as SIGTERM is
         finally:
             executor.shutdown(timeout_sec=1.0)
         reason = failed()
@@ -215,12 +220,15 @@ def _leave_keeping_participant(context: Context, nodes: Sequence[Node], code: in
     # Hidden ('_'), one per process, and deaf to the command line's remapping: `__node:=actor_0`
     # would otherwise give it the stopped node's name, left in the graph until the lease ends.
     # Held until os._exit: a Node no longer referenced is destroyed, and the participant with it.
-    _holds_participant = Node(f"_sdhn_exiting_{os.getpid()}", context=context,
-                              use_global_arguments=False, start_parameter_services=False,
-                              enable_rosout=False)
-    for each in nodes:
-        each.destroy_node()
-    rclpy.try_shutdown(context=context)
+    if context.ok():
+        _holds_participant = Node(f"_sdhn_exiting_{os.getpid()}", context=context,
+                                  use_global_arguments=False, start_parameter_services=False,
+                                  enable_rosout=False)
+        for each in nodes:
+            each.destroy_node()
+        rclpy.try_shutdown(context=context)
+    # else: shut down already (context.shutdown() stopped the node): no node can be created to
+    # hold the participant, so the nodes are left as they are, to the lease like the participant.
     # The interpreter's own first step at exit: threading's exit hooks (a ThreadPoolExecutor's
     # workers told to end), then every non-daemon thread joined; the watchdog bounds it.
     threading._shutdown()  # type: ignore[attr-defined]

@@ -1,0 +1,95 @@
+"""Final approach: the last step onto a MAIF goal, and staying there, as a deployment rule
+decided by each robot from its own observation only (so it runs unchanged in one actor process
+per robot, like stall breaking, which it requires).
+
+- **capture**: a robot exactly one cell from its goal (L1 distance 1 in cells) whose goal cell
+  is free in its 7x7 window (window value 0) moves onto it, whatever the policy chose (also on a
+  step stall breaking samples);
+- **hold**: a robot on its goal stays (action 0), unless stall breaking has it sampling this
+  step: that is how an on-goal robot yields to a blocked neighbour (without stall breaking the
+  hold would deadlock corridors, so the rule is only offered with it).
+
+A robot two or more cells from its goal acts as the policy (and stall breaking) chose.
+
+Why (docs/fleets.md, "Why it wanders"): the maif-20 actor, run on maif-100, brings its robots
+within a cell or two of their goals but fails the last step when the goal lies above or to the
+left (out of its training distribution: MAIF's goals lie below and to the right of the starts),
+and on-goal robots drift off 7 % of steps. Measured by the lead on 7 Dec 2026 (greedy with stall
+breaking 2,10,2, NumPy runtime, 500-step limit), maif-20 actor on maif-100's held-out set (100
+instances): success 0.12 without the rule, 0.82 with capture only, 0.91 with capture and hold;
+on maif-20's own held-out set 1.00 with or without it (makespan 139.3 -> 132.9).
+
+Layout read (``sdhn_sim.envs.maif``; docs/maif.md): own position at obs[0:2] and goal at
+obs[4:6], both cell index / (size - 1); the 7x7 window from index ``COORD_FEATURES``, row-major
+with row = y, the robot at its centre ``RADIUS * WINDOW + RADIUS``; cells 0 free, 1 obstacle or
+outside the grid, 2 another robot. Actions (``ACTION_DELTAS``): 0 stay, 1 up (y - 1), 2 down,
+3 left (x - 1), 4 right.
+
+    approach = FinalApproach.for_env("maif-100")      # or FinalApproach(size)
+    sample = breaker.update(obs)                      # stall breaking's rows sampling this step
+    act = approach.apply(obs, act, sample)            # [rows] actions, rows independent
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from sdhn_sim.envs.maif import ACTION_DELTAS, COORD_FEATURES, OBS_SIZE, RADIUS, WINDOW
+
+FREE_CELL = 0.0  # a window cell that is on the grid, no obstacle and no robot
+STAY = 0
+CENTRE_INDEX = COORD_FEATURES + RADIUS * WINDOW + RADIUS  # the robot's own cell in obs
+# the action whose move is (dx, dy), indexed [dx + 1, dy + 1] (-1: no single move does it)
+MOVE_OF_OFFSET = np.full((3, 3), -1, dtype=np.int64)
+for _a, (_dx, _dy) in enumerate(ACTION_DELTAS):
+    MOVE_OF_OFFSET[_dx + 1, _dy + 1] = _a
+
+
+class FinalApproach:
+    """The capture and hold rule for a MAIF grid of ``size`` x ``size`` cells (see the module
+    docstring); stateless, so one instance serves any number of rows."""
+
+    def __init__(self, size: int) -> None:
+        if isinstance(size, bool) or not isinstance(size, int) or size < 2:
+            raise ValueError(f"final approach: grid size {size!r}; allowed: an integer >= 2")
+        self.size = size
+
+    @classmethod
+    def for_env(cls, env: str) -> FinalApproach:
+        """The rule for a named MAIF task (its grid size); ValueError for any other name (RWARE's
+        observations have no goal offset or obstacle window to read)."""
+        from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
+
+        if env not in MAIF_CONFIGS:
+            raise ValueError(f"final approach reads MAIF observations: env {env!r} is not a MAIF "
+                             f"grid; allowed: one of {', '.join(MAIF_CONFIGS)}")
+        return cls(MAIF_CONFIGS[env].size)
+
+    def offsets(self, obs: npt.ArrayLike) -> npt.NDArray[np.int64]:
+        """[rows, 57] observations -> [rows, 2] goal offset (dx, dy) in cells."""
+        o = np.asarray(obs, dtype=np.float32)
+        return np.rint((o[:, 4:6] - o[:, 0:2]) * (self.size - 1)).astype(np.int64)
+
+    def apply(self, obs: npt.ArrayLike, act: npt.ArrayLike,
+              sampling: npt.ArrayLike) -> npt.NDArray[np.int64]:
+        """[rows, 57] observations, [rows] actions chosen (after stall breaking), [rows] bool:
+        stall breaking samples the row this step -> [rows] actions with the rule applied."""
+        o = np.asarray(obs, dtype=np.float32)
+        a = np.asarray(act, dtype=np.int64)
+        s = np.asarray(sampling, dtype=bool)
+        rows = o.shape[0] if o.ndim == 2 else -1
+        if o.ndim != 2 or o.shape[1] != OBS_SIZE or a.shape != (rows,) or s.shape != (rows,):
+            raise ValueError(f"final approach: expected obs [rows, {OBS_SIZE}], act and sampling "
+                             f"[rows]; got {list(o.shape)}, {list(a.shape)}, {list(s.shape)}")
+        d = self.offsets(o)
+        dist = np.abs(d).sum(axis=1)
+        one = dist == 1
+        out = a.copy()
+        if one.any():
+            r = np.flatnonzero(one)
+            dx, dy = d[r, 0], d[r, 1]
+            goal_free = o[r, CENTRE_INDEX + dx + dy * WINDOW] == FREE_CELL
+            out[r[goal_free]] = MOVE_OF_OFFSET[dx + 1, dy + 1][goal_free]
+        out[(dist == 0) & ~s] = STAY
+        return out

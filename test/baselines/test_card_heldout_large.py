@@ -77,3 +77,35 @@ def test_card_of_other_weights_is_refused(tmp_path: Path, capsys: pytest.Capture
     assert card.main([str(model), "--no-planner"]) == 2
     assert "ship it again" in capsys.readouterr().err
     assert "heldout_large" not in json.loads((model / "card.json").read_text())
+
+
+def test_card_recommends_the_final_approach(tmp_path: Path,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """--final-approach: stall breaking evaluated without and with the rule, the card's deploy
+    names it, and deploy.json carries it as data (with the grid's size). On the 100-instance
+    held-out set instead of the large one, to keep the test short."""
+    card = card_heldout
+    monkeypatch.setattr(card, "SET", "heldout")
+    model = tmp_path / "maif-solo-mappo"
+    shutil.copytree(MODEL, model)
+    assert card.main([str(model), "--final-approach", "--no-planner"]) == 2
+    assert card.main([str(model), "--break-stalls", "--deploy", "final-approach",
+                      "--no-planner"]) == 2
+    assert card.main([str(model), "--break-stalls", "2,10,2", "--final-approach",
+                      "--no-planner"]) == 0
+    entry = json.loads((model / "card.json").read_text())["heldout_large"]
+    assert entry["deploy"] == {"greedy": True, "temperature": 1.0, "break_stalls": True,
+                               "stall_rule": "2,10,2", "final_approach": True}
+    assert {"greedy, stall breaking 2,10,2",
+            "greedy, stall breaking 2,10,2, final approach"} <= set(entry["modes"])
+    assert "`final_approach: true`" in (model / "card.md").read_text()
+    contract = json.loads((model / "deploy.json").read_text())
+    assert contract["mode"]["final_approach"] is True
+    assert contract["mode"]["measured"]["success_rate"] == \
+        entry["modes"]["greedy, stall breaking 2,10,2, final approach"]["success_rate"]
+    assert contract["final_approach"]["constants"]["grid_size"] == 12
+    # the card may still recommend stall breaking alone: then the contract has no rule
+    assert card.main([str(model), "--break-stalls", "2,10,2", "--final-approach", "--deploy",
+                      "break-stalls", "--no-planner"]) == 0
+    contract = json.loads((model / "deploy.json").read_text())
+    assert "final_approach" not in contract and "final_approach" not in contract["mode"]

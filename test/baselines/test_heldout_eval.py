@@ -225,3 +225,54 @@ def test_paired_makespan_counts_only_instances_every_mode_completed() -> None:
     assert g == pytest.approx((1.2 + 1.1) / 2) and s == pytest.approx((1.3 + 1.2) / 2)
     with pytest.raises(ValueError, match="different tasks"):
         paired_makespan_ratios([greedy, {**sampled, "task": "maif-16"}])
+
+
+class ShyWalker:
+    """The scripted greedy walker that never takes the last step onto its goal (it stays one
+    cell away) and steps off its goal whenever it stands on it: what the final approach fixes."""
+
+    def __init__(self, spec: ActorSpec, size: int) -> None:
+        from sdhn_sim.envs.maif_scripted import GreedyPolicy
+
+        self.spec, self.size, self.walker = spec, size, GreedyPolicy(0)
+
+    def initial_state(self, n: int) -> npt.NDArray[np.float32]:
+        return np.zeros((n, 1), dtype=np.float32)
+
+    def act(self, obs: Any, hidden: Any, greedy: bool, rng: np.random.Generator,
+            robot_id: Any = None, *, temperature: float = 1.0
+            ) -> tuple[Any, Any, Any]:
+        o = np.asarray(obs)
+        a = self.walker.act(o)
+        dist = np.rint(np.abs(o[:, 4:6] - o[:, 0:2]).sum(axis=1) * (self.size - 1))
+        a = np.where(dist == 1, 0, np.where(dist == 0, 2, a))
+        return a, np.zeros(len(o), dtype=np.float32), np.asarray(hidden)
+
+
+def test_final_approach_completes_what_the_last_step_failed() -> None:
+    spec = ActorRuntime.from_file(TINY).spec
+    rule = StallRule()
+    shy = [r.success for r in evaluate_set(ShyWalker(spec, 12), "maif-tiny", "heldout",
+                                           stall=rule, max_steps=100)]
+    fixed = [r.success for r in evaluate_set(ShyWalker(spec, 12), "maif-tiny", "heldout",
+                                             stall=rule, approach=True, max_steps=100)]
+    assert sum(fixed) > sum(shy) + 50, (sum(shy), sum(fixed))
+    with pytest.raises(ValueError, match="requires stall breaking"):
+        evaluate_set(ShyWalker(spec, 12), "maif-tiny", "heldout", approach=True)
+
+
+def test_evaluate_policy_final_approach_flag(tmp_path: Path) -> None:
+    out = tmp_path / "e.json"
+    cmd = [sys.executable, str(ROOT / "scripts" / "evaluate_policy.py"), str(TINY.parent),
+           "--sets", "heldout", "--no-planner", "--max-steps", "60"]
+    bad = subprocess.run([*cmd, "--final-approach"], capture_output=True, text=True,
+                         timeout=600, check=False)
+    lines = bad.stderr.strip().splitlines()
+    assert bad.returncode == 2 and len(lines) == 1 and "requires --break-stalls" in lines[0]
+    res = subprocess.run([*cmd, "--break-stalls", "2,10,2", "--final-approach", "--out",
+                          str(out)], capture_output=True, text=True, timeout=600, check=False)
+    assert res.returncode == 0, res.stderr
+    data = json.loads(out.read_text())[0]
+    assert data["final_approach"] is True
+    assert data["mode"] == "greedy, stall breaking 2,10,2, final approach"
+    assert "| greedy, stall breaking 2,10,2, final approach |" in res.stdout

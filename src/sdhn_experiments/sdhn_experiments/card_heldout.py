@@ -1,12 +1,16 @@
 """Add the large held-out set to a shipped MAIF model's card: greedy play and, with
 ``--temperature T``, sampled play at T, with ``--break-stalls [RULE]`` greedy play with stall
-breaking (``sdhn_policy.stall_breaker``), on the 1,000 instances on 200 maps no training run
-sees; the card recommends the mode its launch config deploys (``--deploy``; default: the last
-one evaluated of greedy, sampled, break-stalls).
+breaking (``sdhn_policy.stall_breaker``), and with ``--final-approach`` also that with the
+final-approach rule after it (``sdhn_policy.final_approach``), on the 1,000 instances on 200
+maps no training run sees; the card recommends the mode its launch config deploys
+(``--deploy``; default: the last one evaluated of greedy, sampled, break-stalls,
+final-approach).
 
     .venv/bin/python scripts/card_heldout_large.py models/maif-10-sdhn --break-stalls
     .venv/bin/python scripts/card_heldout_large.py models/maif-20-sdhn --temperature 0.25 \
         --break-stalls --deploy sampled
+    .venv/bin/python scripts/card_heldout_large.py models/maif-20-sdhn --break-stalls 2,10,2 \
+        --final-approach
 
 Writes ``card.json["heldout_large"]`` and a section of ``card.md`` (replacing an earlier one of
 the same title; the rest of the card, written by ``ship_model.py``, is kept), each file written
@@ -35,7 +39,7 @@ from sdhn_experiments.heldout_eval import (
     summarise,
 )
 from sdhn_policy.actor_runtime import ActorRuntime
-from sdhn_policy.deploy_contract import write_deploy_json
+from sdhn_policy.deploy_contract import stall_mode_name, write_deploy_json
 from sdhn_policy.stall_breaker import StallRule
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
 
@@ -43,13 +47,15 @@ SET = "heldout_large"
 TITLE = "## Large held-out set"
 
 
-DEPLOY_MODES = ("greedy", "sampled", "break-stalls")
+DEPLOY_MODES = ("greedy", "sampled", "break-stalls", "final-approach")
 
 
 def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
              seed: int = 0, *, stall_rule: StallRule | None = None, deploy: str | None = None,
-             dead_reckoning: bool = False) -> dict[str, Any]:
-    """card.json's ``heldout_large`` entry for the model directory ``model``. ``dead_reckoning``:
+             final_approach: bool = False, dead_reckoning: bool = False) -> dict[str, Any]:
+    """card.json's ``heldout_large`` entry for the model directory ``model``. ``final_approach``
+    (with ``stall_rule``): greedy play with stall breaking is evaluated both without and with
+    the final-approach rule, so the card shows what the rule adds. ``dead_reckoning``:
     the recommended mode includes it (the launcher then deploys it); it changes nothing on the
     current observations of this set, so the figures hold for the mode with it."""
     card = json.loads((model / "card.json").read_text())
@@ -70,14 +76,22 @@ def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
         runs.append((f"sampled at T={temperature:g}",
                      {"sample": True, "temperature": temperature}))
     break_stalls = stall_rule is not None
+    if final_approach and stall_rule is None:
+        raise ValueError("--final-approach requires --break-stalls (its hold would deadlock "
+                         "corridors without stall breaking)")
     if stall_rule is not None:
-        runs.append((f"greedy, stall breaking {stall_rule.text()}", {"stall": stall_rule}))
-    deploy = deploy or ("break-stalls" if break_stalls else
-                        "sampled" if temperature is not None else "greedy")
-    if (deploy == "sampled" and temperature is None) or (deploy == "break-stalls"
-                                                          and not break_stalls):
-        raise ValueError(f"--deploy {deploy}: that mode is not evaluated (add --temperature or "
-                         "--break-stalls)")
+        runs.append((stall_mode_name(stall_rule), {"stall": stall_rule}))
+        if final_approach:
+            runs.append((stall_mode_name(stall_rule, True),
+                         {"stall": stall_rule, "approach": True}))
+    deploy = deploy or ("final-approach" if final_approach else "break-stalls" if break_stalls
+                        else "sampled" if temperature is not None else "greedy")
+    if ((deploy == "sampled" and temperature is None)
+            or (deploy == "break-stalls" and not break_stalls)
+            or (deploy == "final-approach" and not final_approach)):
+        raise ValueError(f"--deploy {deploy}: that mode is not evaluated (add --temperature, "
+                         "--break-stalls or --final-approach)")
+    stalls_deployed = deploy in ("break-stalls", "final-approach")
     modes: dict[str, Any] = {}
     for name, how in runs:
         recs = evaluate_set(rt, task, SET, seed=seed, **how)
@@ -90,10 +104,11 @@ def evaluate(model: Path, temperature: float | None, planner_cache: Path | None,
             "maps": inst.num_instances // inst.num_formations, "seed": seed, "modes": modes,
             "deploy": {"greedy": deploy != "sampled",
                        "temperature": temperature if deploy == "sampled" else 1.0,
-                       "break_stalls": deploy == "break-stalls",
+                       "break_stalls": stalls_deployed,
                        **({"stall_rule": stall_rule.text()}
-                          if deploy == "break-stalls" and stall_rule is not None
+                          if stalls_deployed and stall_rule is not None
                           and stall_rule != StallRule() else {}),
+                       **({"final_approach": True} if deploy == "final-approach" else {}),
                        **({"dead_reckoning": True} if dead_reckoning else {})}}
 
 
@@ -110,6 +125,8 @@ def section(entry: dict[str, Any]) -> str:
                     f"{ratio(m['makespan_ratio_mean'])}, {ratio(m['makespan_ratio_p90'])} |")
     d = entry["deploy"]
     rule = f", `stall_rule: \"{d['stall_rule']}\"`" if d.get("stall_rule") else ""
+    if d.get("final_approach"):
+        rule += ", `final_approach: true`"
     how = (f"`greedy: true`, `break_stalls: true`{rule}" if d.get("break_stalls") else "greedy"
            if d["greedy"] else f"`greedy: false`, `temperature: {d['temperature']:g}`")
     if d.get("dead_reckoning"):
@@ -157,6 +174,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="also greedy play with stall breaking (the actor's break_stalls); "
                         "optional: the rule (default: the actor's, "
                         f"{StallRule().text()}; scripts/tune_stall_rule.py chooses one)")
+    p.add_argument("--final-approach", action="store_true",
+                   help="with --break-stalls: also that mode with the final-approach rule (the "
+                        "actor's final_approach; sdhn_policy.final_approach), the mode the card "
+                        "recommends")
     p.add_argument("--deploy", choices=DEPLOY_MODES, default=None,
                    help="the mode the card recommends (default: the last evaluated)")
     p.add_argument("--dead-reckoning", action="store_true",
@@ -175,11 +196,16 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"card_heldout_large: --break-stalls: {e}", file=sys.stderr)
         return 2
+    if args.final_approach and rule is None:
+        print("card_heldout_large: --final-approach requires --break-stalls (its hold would "
+              "deadlock corridors without stall breaking)", file=sys.stderr)
+        return 2
     for model in args.models:
         try:
             entry = evaluate(model, args.temperature,
                              None if args.no_planner else args.planner_cache,
                              stall_rule=rule, deploy=args.deploy,
+                             final_approach=args.final_approach,
                              dead_reckoning=args.dead_reckoning)
         except (OSError, ValueError, KeyError) as e:
             print(f"card_heldout_large: {e}", file=sys.stderr)

@@ -38,6 +38,7 @@ from sdhn_experiments.heldout_eval import (
     write_json,
 )
 from sdhn_policy.actor_runtime import ActorRuntime
+from sdhn_policy.deploy_contract import stall_mode_name
 from sdhn_policy.stall_breaker import StallRule
 from sdhn_policy.weights import WeightsError
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
@@ -127,6 +128,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="greedy with stall breaking, as the actor nodes' break_stalls runs it "
                         "(sdhn_policy.stall_breaker); optional: the rule's steps and "
                         f"temperature (default {StallRule().text()},1)")
+    p.add_argument("--final-approach", action="store_true",
+                   help="with --break-stalls: a robot one cell from its free goal steps onto it, "
+                        "one on its goal stays unless stall breaking samples "
+                        "(sdhn_policy.final_approach; the actor nodes' final_approach)")
     p.add_argument("--max-steps", type=int, default=None, metavar="T",
                    help="episode step limit (default: the environment's, 500 for MAIF)")
     p.add_argument("--runtime", choices=("numpy", "torch"), default="numpy")
@@ -165,6 +170,10 @@ def main(argv: list[str] | None = None) -> int:
                   "--unstick or --temperature (its temperature is its fourth value)",
                   file=sys.stderr)
             return 2
+    if args.final_approach and stall is None:
+        print("evaluate_policy: --final-approach requires --break-stalls (its hold would "
+              "deadlock corridors without stall breaking)", file=sys.stderr)
+        return 2
     if args.max_steps is not None and args.max_steps < 1:
         print("evaluate_policy: --max-steps must be an integer >= 1", file=sys.stderr)
         return 2
@@ -204,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
             recs = evaluate_set(policy, task, which, sample=args.sample, seed=args.seed,
                                 wedge_steps=args.wedge_steps, unstick=args.unstick,
                                 temperature=args.temperature, stall=stall,
-                                max_steps=args.max_steps)
+                                approach=args.final_approach, max_steps=args.max_steps)
             took = time.monotonic() - t0
             plan = None if args.no_planner else planner_makespans(
                 task, which, args.planner_cache, progress=True)
@@ -212,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
             at_t = f" at T={args.temperature:g}" if args.temperature != 1.0 else ""
             mode = (f"sampled{at_t}" if args.sample else
                     f"greedy, sampled{at_t} when stuck {args.unstick}" if args.unstick
-                    else f"greedy, stall breaking {stall.text()}" if stall else "greedy")
+                    else stall_mode_name(stall, args.final_approach) if stall else "greedy")
             print(f"[eval] {label} {task}/{which} ({mode}, {args.runtime}): success "
                   f"{summary['success_rate']:.3f} {summary['success_ci95_maps']}, makespan ratio "
                   f"{summary.get('makespan_ratio_mean')}, deadlocks "
@@ -223,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
                             "runtime": args.runtime, "seed": args.seed, "unstick": args.unstick,
                             "temperature": args.temperature,
                             "stall_rule": None if stall is None else asdict(stall),
+                            "final_approach": args.final_approach,
                             "wedge_steps": args.wedge_steps, "summary": summary,
                             "records": records_json(recs), "planner_makespan": plan})
     if args.out:

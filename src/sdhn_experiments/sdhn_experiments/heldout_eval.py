@@ -35,6 +35,7 @@ import numpy.typing as npt
 from scipy import stats
 
 from sdhn_policy.actor_runtime import ActorRuntime, check_temperature, choose_actions
+from sdhn_policy.final_approach import FinalApproach
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import ActorSpec, atomic_write_bytes
 from sdhn_sim.envs.maif import MAX_STEPS, MaifEnv
@@ -91,17 +92,23 @@ def set_checksum(inst: MaifInstances) -> str:
 def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False, seed: int = 0,
                  wedge_steps: int = WEDGE_STEPS, reward: str = "corrected",
                  unstick: int = 0, temperature: float = 1.0,
-                 stall: StallRule | None = None,
+                 stall: StallRule | None = None, approach: bool = False,
                  max_steps: int | None = None) -> list[InstanceResult]:
     """One episode per instance of set ``which`` of ``task``, all in one batch. ``sample``:
     actions drawn from softmax(logits / ``temperature``). ``unstick`` > 0 (with greedy play): a
     robot off its goal that has not moved for ``unstick`` steps samples its action from the
     policy (at ``temperature``) instead of taking the argmax, until it moves. ``stall`` (with
     greedy play): stall breaking as the actor nodes run it (``sdhn_policy.stall_breaker``).
-    ``max_steps``: the episode limit (None: the environment's)."""
+    ``approach`` (with ``stall``): the final-approach rule after stall breaking, as the actor
+    nodes' ``final_approach`` runs it (``sdhn_policy.final_approach``). ``max_steps``: the
+    episode limit (None: the environment's)."""
     check_temperature(temperature)
     if stall is not None and (sample or unstick):
         raise ValueError("stall breaking is a greedy mode: not with sample or unstick")
+    if approach and stall is None:
+        raise ValueError("final approach requires stall breaking (stall): its hold would "
+                         "deadlock corridors without it")
+    capture = FinalApproach.for_env(task) if approach else None
     inst = set_instances(task, which)
     b = inst.num_instances
     env = MaifEnv(inst, num_envs=b, seed=seed, name=task, instance_order="round_robin",
@@ -127,6 +134,8 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
                 act = np.where(stuck.reshape(-1), drawn, act)
         if breaker is not None:
             act = breaker.resample(policy, flat, h, act, rng=rng, robot_id=ids)
+            if capture is not None:
+                act = capture.apply(flat, act, breaker.sampling)
         h = h_next
         res = env.step(act.reshape(b, n))
         after = env.positions

@@ -15,6 +15,9 @@ reproduces the project's deployed behaviour from the two JSON files and ``actor.
   from a per-robot NumPy generator seeded ``[seed, robot_id]``);
 - ``stall_breaking``: :mod:`sdhn_policy.stall_breaker` as state, constants and an ordered list of
   update steps;
+- ``final_approach`` (where the card's mode includes it, ``heldout_large.deploy.final_approach``,
+  always with stall breaking): :mod:`sdhn_policy.final_approach`, the capture and hold rule,
+  as constants and an ordered list of steps;
 - ``dead_reckoning`` (where the card's mode includes it, ``heldout_large.deploy.dead_reckoning``):
   :mod:`sdhn_policy.dead_reckoning`, the rule that moves an observation lagging behind the robot's
   own actions forward by them, in words precise enough to re-implement.
@@ -31,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from sdhn_policy.dead_reckoning import HORIZON, OBSTACLE
+from sdhn_policy.final_approach import CENTRE_INDEX, FREE_CELL, STAY, FinalApproach
 from sdhn_policy.stall_breaker import _EPS, _NEIGHBOURS, ROBOT_CELL, StallRule
 from sdhn_policy.weights import ActorSpec, atomic_write_bytes
 from sdhn_sim.envs.maif import ACTION_DELTAS, COORD_FEATURES, OBS_SIZE, RADIUS, WINDOW
@@ -77,6 +81,12 @@ def rware_observation(spec: ActorSpec) -> dict[str, Any]:
                       "(docs/rware.md); features identity"}
 
 
+def stall_mode_name(rule: StallRule, final_approach: bool = False) -> str:
+    """The name of greedy play with stall breaking (and the final approach) under which cards
+    (``heldout_large.modes``) and evaluations record its measured figures."""
+    return f"greedy, stall breaking {rule.text()}" + (", final approach" if final_approach else "")
+
+
 def stall_breaking(rule: StallRule) -> dict[str, Any]:
     """:class:`sdhn_policy.stall_breaker.StallBreaker` for one robot, as data."""
     return {
@@ -104,6 +114,32 @@ def stall_breaking(rule: StallRule) -> dict[str, Any]:
             "if sample: this step's action is sampled at parameters.temperature, else argmax",
         ],
         "order": "update runs on every observation of the episode, before the action is chosen",
+    }
+
+
+def final_approach(env: str) -> dict[str, Any]:
+    """:class:`sdhn_policy.final_approach.FinalApproach` for one robot of MAIF task ``env``, as
+    data (ValueError for a task that is not a MAIF grid)."""
+    rule = FinalApproach.for_env(env)
+    return {
+        "constants": {"grid_size": rule.size, "position_indices": [0, 1], "goal_indices": [4, 5],
+                      "centre_index": CENTRE_INDEX, "window_size": WINDOW,
+                      "free_cell": FREE_CELL, "stay": STAY,
+                      "action_deltas (dx, dy)": {str(a): [int(v) for v in d]
+                                                 for a, d in enumerate(ACTION_DELTAS)}},
+        "state": "none: each step is decided from that step's observation and stall breaking's "
+                 "sample flag",
+        "update": [
+            "(dx, dy) = round((obs[4:6] - obs[0:2]) * (grid_size - 1)), the difference in "
+            "float32, rounded to the nearest integer: the goal's offset in cells",
+            "capture: if |dx| + |dy| == 1 and obs[centre_index + dx + dy * window_size] == "
+            "free_cell: action = the action whose delta is (dx, dy) (also on a step stall "
+            "breaking samples)",
+            "hold: else if dx == 0 and dy == 0 and stall breaking does not sample this step: "
+            "action = stay",
+            "else: the action chosen (argmax, or drawn where stall breaking samples)",
+        ],
+        "order": "after stall breaking's update and the action choice, on every observation",
     }
 
 
@@ -175,7 +211,10 @@ def card_mode(card: dict[str, Any] | None) -> dict[str, Any]:
     if breaks:
         rule = StallRule.parse(chosen["stall_rule"]) if chosen.get("stall_rule") else StallRule()
         mode.update(kind="greedy_with_stall_breaking", stall_rule=rule.text())
-        measured_name = f"greedy, stall breaking {rule.text()}"
+        approach = bool(chosen.get("final_approach", False))
+        if approach:  # the key only where it is on: earlier contracts stay as they were
+            mode["final_approach"] = True
+        measured_name = stall_mode_name(rule, approach)
     elif greedy:
         mode["kind"] = "greedy"
         measured_name = "greedy"
@@ -204,6 +243,8 @@ def deploy_contract(spec: ActorSpec, family: str, card: dict[str, Any] | None,
     }
     if mode["break_stalls"]:
         contract["stall_breaking"] = stall_breaking(StallRule.parse(mode["stall_rule"]))
+    if mode.get("final_approach"):
+        contract["final_approach"] = final_approach(str(contract["env"]))
     if mode["dead_reckoning"]:
         contract["dead_reckoning"] = dead_reckoning()
     return contract

@@ -120,6 +120,8 @@ class StallBreaker:
         self.best = np.full(robots, np.inf)  # closest the robot has been to its goal
         self.no_progress = np.zeros(robots, dtype=np.int64)  # steps since `best` last improved
         self.left = np.zeros(robots, dtype=np.int64)  # sampled steps still to take
+        # who samples this step: the last update's answer (final approach reads it)
+        self.sampling = np.zeros(robots, dtype=bool)
 
     def reset(self, rows: slice | Sequence[int] | None = None) -> None:
         """Forget the rows' history (a new episode); ``None``: every row."""
@@ -130,6 +132,7 @@ class StallBreaker:
         self.best[sel] = np.inf
         self.no_progress[sel] = 0
         self.left[sel] = 0
+        self.sampling[sel] = False
         if self._last is not None:
             self._last[sel] = np.nan  # nothing equals it: the next observation is not "calm"
 
@@ -157,6 +160,7 @@ class StallBreaker:
         self.left = np.where(stalled & (self.left == 0), r.sample_steps, self.left)
         sample = self.left > 0
         self.left = np.maximum(self.left - 1, 0)
+        self.sampling = sample
         return sample
 
     def resample(self, policy: SamplingPolicy, obs: npt.ArrayLike, hidden: npt.ArrayLike,

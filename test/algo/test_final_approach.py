@@ -50,7 +50,8 @@ def test_capture_and_hold_against_the_true_world(task: str, seed: int, draw_seed
     rule = FinalApproach.for_env(task)
     rng = np.random.default_rng(draw_seed)
     captured = held = 0
-    for obs, pos, goal, obstacles in world_states(task, seed, steps=60 if task == "maif-tiny" else 120):
+    steps = 60 if task == "maif-tiny" else 120  # maif-10's robots walk further
+    for obs, pos, goal, obstacles in world_states(task, seed, steps):
         rows = len(obs)
         n = rows // len(obstacles)
         act = rng.integers(0, 5, rows)

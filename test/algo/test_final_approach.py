@@ -5,6 +5,8 @@ against the true positions, goals and obstacles, not against the window it reads
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -115,3 +117,72 @@ def test_for_env_and_bad_input() -> None:
         FinalApproach(1)
     with pytest.raises(ValueError, match="expected obs"):
         FinalApproach(12).apply(np.zeros((2, 10)), np.zeros(2), np.zeros(2, bool))
+
+
+class PerRobotDraws:
+    """The runtime with each robot's draws from its own generator, ``[seed, robot_id]`` as each
+    ActorCore has, and only for the rows the breaker samples (as each actor process draws), so
+    the batched path can be compared with the cores exactly, sampled steps included."""
+
+    def __init__(self, rt: Any, breaker: Any, n: int, seed: int) -> None:
+        self.rt, self.breaker = rt, breaker
+        self.rngs = [np.random.default_rng([seed, i]) for i in range(n)]
+
+    def act(self, obs: Any, hidden: Any, greedy: bool, rng: np.random.Generator,
+            robot_id: Any = None, *, temperature: float = 1.0) -> tuple[Any, Any, Any]:
+        act, logp, h = self.rt.act(obs, hidden, True, rng, robot_id)
+        if not greedy:
+            for i in np.flatnonzero(self.breaker.sampling):
+                a, _, _ = self.rt.act(obs[i:i + 1], hidden[i:i + 1], False, self.rngs[i],
+                                      temperature=temperature)
+                act[i] = a[0]
+        return act, logp, h
+
+
+def test_actor_core_and_the_batched_evaluation_take_the_same_actions() -> None:
+    """One ActorCore per robot (as each actor process runs it) against the batched step of
+    ``heldout_eval.evaluate_set`` (greedy, ``StallBreaker.resample``, then the rule on its
+    ``sampling`` mask) on the same observations, with the same random streams: the same action
+    for every robot at every step. The maif-20 actor on maif-30, where the rule fires often."""
+    from pathlib import Path
+
+    from sdhn_policy.actor_core import ActorCore, Decision
+    from sdhn_policy.actor_runtime import ActorRuntime
+    from sdhn_policy.stall_breaker import StallBreaker, StallRule
+
+    actor = Path(__file__).resolve().parents[2] / "models" / "maif-20-sdhn" / "actor.safetensors"
+    rt = ActorRuntime.from_file(actor)
+    rule, task = StallRule.parse("2,10,2"), "maif-30"
+    approach = FinalApproach.for_env(task)
+    env = MaifEnv(task, num_envs=1, seed=2, max_steps=150)
+    n = env.num_robots
+    cores = [ActorCore(i, n, True, 0, rt, stall_rule=rule, approach=approach) for i in range(n)]
+    breaker, h = StallBreaker(rule, n), rt.initial_state(n)
+    policy = PerRobotDraws(rt, breaker, n, seed=0)
+    rng = np.random.default_rng(0)
+    obs, _ = env.reset(seed=2)
+    overridden = sampled = 0
+    for step in range(150):
+        flat = obs.reshape(n, -1)
+        ours = [c.on_obs(0, step, i, n, flat[i]) for i, c in enumerate(cores)]
+        assert all(isinstance(d, Decision) for d in ours)
+        one = np.array([d.action for d in ours if isinstance(d, Decision)])
+        greedy, _, h_next = rt.act(flat, h, True, rng)
+        drawn = breaker.resample(policy, flat, h, greedy, rng=rng)
+        batch = approach.apply(flat, drawn, breaker.sampling)
+        h = h_next
+        assert np.array_equal(one, batch), (step, one, batch)
+        overridden += int(np.sum(batch != drawn))
+        sampled += int(breaker.sampling.sum())
+        res = env.step(one[None])
+        if res.episodes:
+            break
+        obs = res.obs
+    assert overridden > 0 and sampled > 0, (overridden, sampled)
+
+
+def test_actor_core_refuses_the_rule_without_stall_breaking() -> None:
+    from sdhn_policy.actor_core import ActorCore
+
+    with pytest.raises(ValueError, match="requires stall breaking"):
+        ActorCore(0, 4, greedy=True, seed=0, approach=FinalApproach(12))

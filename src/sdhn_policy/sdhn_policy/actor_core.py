@@ -6,6 +6,10 @@ in at the next observation, so one step always runs on one set of weights, and t
 the version that produced it. The GRU state goes back to zeros when a new episode starts
 (step 0 or a different episode counter). NumPy only: importing this never imports torch.
 
+Final approach (``approach``: ``sdhn_policy.final_approach.FinalApproach.for_env(env)``, MAIF,
+with stall breaking): after the action is chosen, a robot one cell from its free goal steps onto
+it and one on its goal stays unless stall breaking samples this step.
+
 Dead reckoning (``reckoner``: ``sdhn_policy.dead_reckoning.reckoner_for(env)``, MAIF or RWARE,
 for one row): the core keeps the step each recorded action
 answered, so an observation ``obs_age`` steps behind this robot's own actions
@@ -36,6 +40,7 @@ from sdhn_policy.actor_runtime import (
     check_temperature,
 )
 from sdhn_policy.dead_reckoning import Reckoner
+from sdhn_policy.final_approach import FinalApproach
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_policy.weights import IncompatibleWeightsError, OversizedPayloadError, WeightsError
 from sdhn_sim.envs.maif import OBS_SIZE as MAIF_OBS_SIZE
@@ -89,6 +94,7 @@ class ActorCore:
                  runtime: ActorRuntime | None = None, *,
                  runtime_cls: type[ActorRuntime] = ActorRuntime,
                  temperature: float = 1.0, stall_rule: StallRule | None = None,
+                 approach: FinalApproach | None = None,
                  skip_ahead: bool = False, reckoner: Reckoner | None = None) -> None:
         self.robot_id = robot_id
         # Realtime clock: the world steps on without this robot, so a later step of the episode
@@ -110,6 +116,11 @@ class ActorCore:
             raise ValueError("stall breaking is a greedy mode (greedy must be true)")
         # greedy play that samples a few actions when this robot's play has stalled
         self.stalls = StallBreaker(stall_rule, 1) if stall_rule is not None else None
+        if approach is not None and self.stalls is None:
+            raise ValueError("final approach requires stall breaking (stall_rule): its hold "
+                             "would deadlock corridors without it")
+        # the last step onto the goal and staying there (sdhn_policy.final_approach)
+        self.approach = approach
         self.runtime_cls = runtime_cls  # builds the runtime of every weights message
         self.num_robots = num_robots
         self.greedy = greedy
@@ -163,7 +174,7 @@ class ActorCore:
             raise IncompatibleWeightsError(
                 f"incompatible weights: trained for {spec.num_robots} robots (one-hot id), this "
                 f"team has {self.num_robots}")
-        if self.stalls is not None and spec.obs_size != MAIF_OBS_SIZE:
+        if self.stalls is not None and spec.obs_size != MAIF_OBS_SIZE:  # also final approach
             raise IncompatibleWeightsError(
                 f"incompatible weights: stall breaking reads MAIF observations "
                 f"({MAIF_OBS_SIZE} floats), this actor takes {spec.obs_size}")
@@ -238,7 +249,9 @@ class ActorCore:
             self.reckoned += int(unseen > 0)
             obs = self.reckoner.correct(obs[None], [unseen])[0]
         greedy, temperature = self.greedy, self.temperature
-        if self.stalls is not None and self.stalls.update(obs[None])[0]:
+        sampling = self.stalls is not None and bool(self.stalls.update(obs[None])[0])
+        if sampling:
+            assert self.stalls is not None
             greedy, temperature = False, self.stalls.rule.temperature
         try:
             action, logp, h_next = self.runtime.act(obs[None], self.hidden, greedy, self.rng,
@@ -248,6 +261,12 @@ class ActorCore:
             return self._unanswered(step, e.h_next, Drop(DropKind.NON_FINITE_LOGITS, str(e)))
         except PolicyOutputError as e:
             return self._unanswered(step, None, Drop(DropKind.BAD_POLICY_OUTPUT, str(e)))
+        if self.approach is not None:
+            # The log-prob stays the policy's for the action it chose (the argmax, or the draw),
+            # not for the rule's: only greedy deploy actors run the rule, and no trainer learns
+            # from them (the launcher starts a trainer only in train mode, where actors sample
+            # without stall breaking or the final approach: launch_load refuses them there).
+            action = self.approach.apply(obs[None], action, np.array([sampling]))
         self.hidden = h_next
         self.last_step = step
         self._record(step, int(action[0]))

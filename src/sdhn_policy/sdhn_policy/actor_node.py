@@ -63,6 +63,7 @@ from sdhn_base.ros.runner import ConfigError, run_node
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation
 from sdhn_policy.actor_core import ActorCore, Decision, Drop, runtime_class, runtime_from_file
 from sdhn_policy.dead_reckoning import Reckoner
+from sdhn_policy.final_approach import FinalApproach
 from sdhn_policy.stall_breaker import StallRule
 from sdhn_policy.weights import WeightsError
 from sdhn_sim.envs.registry import env_names
@@ -83,6 +84,10 @@ PARAMETERS = {
                                     "stalled samples a few actions (sdhn_policy.stall_breaker)")),
     "stall_rule": (StallRule().text(), string("break_stalls: CALM,PROGRESS,SAMPLE[,T], the "
                                               "rule's step counts and sampling temperature")),
+    "final_approach": (False, boolean("break_stalls true, needs env naming a MAIF grid: a robot "
+                                      "one cell from its free goal steps onto it, one on its "
+                                      "goal stays unless stall breaking samples "
+                                      "(sdhn_policy.final_approach)")),
     "seed": (0, integer("seed of the action sampler", 0)),
     "backend": ("numpy", string("policy runtime: 'numpy' or 'onnx' (onnxruntime); same actions")),
     "managed": (False, boolean("wait for lifecycle transitions (configure, activate) through the "
@@ -130,6 +135,15 @@ class ActorNode(LifecycleNode):
                 self.stall_rule = StallRule.parse(p["stall_rule"])
             except ValueError as e:
                 raise ConfigError(f"stall_rule: {e}") from None
+        self.approach: FinalApproach | None = None
+        if p["final_approach"]:
+            if self.stall_rule is None:
+                raise ConfigError("final_approach: applies only with break_stalls: true (its "
+                                  "hold would deadlock corridors without stall breaking)")
+            try:
+                self.approach = FinalApproach.for_env(p["env"])
+            except ValueError as e:
+                raise ConfigError(f"final_approach: needs env to name the grid; {e}") from None
         self.target = target_reader(p["env"]) if p["env"] else None
         if p["env"] and self.target is None:
             raise ConfigError(f"env: unknown {p['env']!r}; allowed: '' or one of "
@@ -180,6 +194,7 @@ class ActorNode(LifecycleNode):
         stalls = self.stall_rule.text() if self.stall_rule else "off"
         self.get_logger().info(f"ready: robot {robot_id} of {num_robots}, greedy={p['greedy']}, "
                                f"temperature={p['temperature']:g}, break_stalls={stalls}, "
+                               f"final_approach={p['final_approach']}, "
                                f"dead_reckoning={p['dead_reckoning']}, backend={p['backend']}, "
                                f"{how}")
 
@@ -195,7 +210,8 @@ class ActorNode(LifecycleNode):
             self.reckoner.reset()
         return ActorCore(self.robot_id, p["num_robots"], p["greedy"], p["seed"], runtime,
                          runtime_cls=self.runtime_cls, temperature=p["temperature"],
-                         stall_rule=self.stall_rule, skip_ahead=p["realtime"],
+                         stall_rule=self.stall_rule, approach=self.approach,
+                         skip_ahead=p["realtime"],
                          reckoner=self.reckoner)
 
     def weights_error(self, e: WeightsError) -> str:

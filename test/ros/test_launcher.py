@@ -55,7 +55,7 @@ def wait_after(proc: NodeProcess, first: str, then: str, timeout: float) -> bool
 
 def test_runs_its_episodes_and_ends_cleanly(weights: Path, tmp_path: Path) -> None:
     with node_processes(launch(weights, tmp_path, "episodes=2", "break_stalls=true",
-                               "team_ns=/sdhn_launch")) as (launcher,):
+                               "final_approach=true", "team_ns=/sdhn_launch")) as (launcher,):
         launcher.proc.wait(timeout=60)
     assert launcher.proc.returncode == 0, launcher.output
     assert "every child stopped cleanly" in launcher.output
@@ -72,9 +72,11 @@ def test_runs_its_episodes_and_ends_cleanly(weights: Path, tmp_path: Path) -> No
     assert status == {"sim.ready", "sim-events.jsonl", *(f"actor_{i}.ready" for i in range(4))}
     assert "5/5 ready" in launcher.output, launcher.output
     # each actor process runs its own stall breaker (greedy play, break_stalls from the config)
+    # and the final approach after it
     for i in range(4):
         log = (tmp_path / "logs" / f"actor_{i}.log").read_text()
         assert "greedy=True" in log and f"break_stalls={StallRule().text()}" in log, log
+        assert "final_approach=True" in log, log
 
 
 @pytest.mark.parametrize("policy", ["on-failure", "never"])
@@ -204,6 +206,16 @@ def test_break_stalls_reaches_the_actors_only_in_greedy_maif_deployment(weights:
                      (["break_stalls=true", "stall_rule=2,10"], "CALM,PROGRESS")]:
         with pytest.raises(LaunchConfigError, match=f"^stall_rule: .*{why}"):
             load_config(None, [*base, *bad])
+    # the final approach: with stall breaking only, and it reaches every actor
+    params = node_parameters(resolve(load_config(None, [*base, "break_stalls=true",
+                                                        "final_approach=true"])))
+    assert {params[f"/sdhn/robot_{i}/actor"]["final_approach"] for i in range(4)} == {True}
+    params = node_parameters(resolve(load_config(None, [*base, "break_stalls=true"])))
+    assert {params[f"/sdhn/robot_{i}/actor"]["final_approach"] for i in range(4)} == {False}
+    with pytest.raises(LaunchConfigError, match=r"^final_approach: .*only with break_stalls"):
+        load_config(None, [*base, "final_approach=true"])
+    with pytest.raises(LaunchConfigError, match=r"^final_approach: .*only with break_stalls"):
+        load_config(None, [*base, "final_approach=true", "greedy=false"])
 
 
 @pytest.mark.parametrize("ns", ["sdhn", "/sdhn/", "/1team", "/a__b", ""])

@@ -40,6 +40,7 @@ class LaunchConfig:
     temperature: float = 1.0  # deploy with greedy false: sampling temperature (train mode: 1)
     break_stalls: bool = False  # deploy with greedy true: stall breaking (actor break_stalls)
     stall_rule: str = ""  # with break_stalls: the actors' stall_rule ("" = their default)
+    final_approach: bool = False  # with break_stalls, MAIF: the actors' final_approach
     # deploy, MAIF or RWARE: actor dead_reckoning; None = as the weights' card.json says (resolve())
     dead_reckoning: bool | None = None
     step_deadline: float = 1.0
@@ -79,7 +80,8 @@ def describe_actions(cfg: LaunchConfig) -> str:
         return f"sampled at temperature {cfg.temperature:g}{reckon}"
     if cfg.break_stalls:
         rule = cfg.stall_rule or "the actors' default"
-        return f"greedy, with stall breaking (rule {rule}){reckon}"
+        approach = " and the final approach" if cfg.final_approach else ""
+        return f"greedy, with stall breaking (rule {rule}){approach}{reckon}"
     return "greedy" + reckon
 
 

@@ -68,6 +68,8 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
             "temperature": float(cfg.temperature),
             "break_stalls": bool(cfg.break_stalls and cfg.mode == "deploy"),
             **({"stall_rule": cfg.stall_rule} if cfg.stall_rule else {}),
+            "final_approach": bool(cfg.final_approach and cfg.break_stalls
+                                   and cfg.mode == "deploy"),
             "env": cfg.env, "managed": cfg.managed, "realtime": cfg.clock == "realtime",
             "dead_reckoning": bool(cfg.dead_reckoning and cfg.mode == "deploy")}
     return nodes

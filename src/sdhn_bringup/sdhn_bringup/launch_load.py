@@ -143,6 +143,9 @@ def validate(cfg: LaunchConfig) -> None:
             StallRule.parse(cfg.stall_rule)
         except ValueError as e:
             raise LaunchConfigError(f"stall_rule: {e}") from None
+    if cfg.final_approach and not cfg.break_stalls:
+        raise LaunchConfigError("final_approach: applies only with break_stalls: true (its hold "
+                                "would deadlock corridors without stall breaking)")
     if cfg.dead_reckoning and cfg.mode != "deploy":
         raise LaunchConfigError(f"dead_reckoning: applies only to deploy mode; got mode "
                                 f"{cfg.mode}")

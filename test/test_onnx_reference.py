@@ -20,7 +20,9 @@ import pytest
 from sdhn_policy.actor_core import ActorCore, Decision
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_policy.deploy_contract import FILE_NAME, deploy_contract
+from sdhn_policy.final_approach import FinalApproach
 from sdhn_policy.stall_breaker import StallRule
+from sdhn_sim.envs.maif_scripted import GreedyPolicy
 from sdhn_sim.envs.pettingzoo_env import parallel_env
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,9 +42,11 @@ def project_team(model: Path, n: int, seed: int) -> list[ActorCore]:
     mode = deploy_contract(ActorRuntime.from_file(model / "actor.safetensors").spec, "maif",
                            json.loads((model / "card.json").read_text()))["mode"]
     rule = StallRule.parse(mode["stall_rule"]) if mode["break_stalls"] else None
+    card = json.loads((model / "card.json").read_text())
+    approach = FinalApproach.for_env(card["env"]) if mode.get("final_approach") else None
     rt = ActorRuntime.from_file(model / "actor.safetensors")
     return [ActorCore(i, n, bool(mode["greedy"]), seed, rt, temperature=mode["temperature"],
-                      stall_rule=rule) for i in range(n)]
+                      stall_rule=rule, approach=approach) for i in range(n)]
 
 
 def play_project(env: Any, cores: list[ActorCore]) -> tuple[list[np.ndarray], dict[str, Any]]:
@@ -117,6 +121,63 @@ def test_stall_rule_in_the_reference_matches_the_breaker_on_random_play() -> Non
             for r in rules:
                 r.reset()
     assert fired > 0, "the rule never fired: the comparison proved nothing"
+
+
+def final_approach_model(tmp_path: Path, env: str = "maif-10") -> Path:
+    """maif-10-sdhn's folder with a card that deploys stall breaking 2,10,2 and the final
+    approach on ``env``, and the deploy.json the export writes from it."""
+    import shutil
+
+    from sdhn_policy.deploy_contract import write_deploy_json
+
+    folder = tmp_path / "model"
+    shutil.copytree(REPO / "models" / "maif-10-sdhn", folder)
+    card = json.loads((folder / "card.json").read_text())
+    card["env"] = env
+    card["heldout_large"]["deploy"] = {"greedy": True, "temperature": 1.0, "break_stalls": True,
+                                       "stall_rule": "2,10,2", "final_approach": True}
+    (folder / "card.json").write_text(json.dumps(card))
+    write_deploy_json(folder, ActorRuntime.from_file(folder / "actor.safetensors").spec, "maif")
+    return folder
+
+
+def test_final_approach_round_trip_through_deploy_json(tmp_path: Path) -> None:
+    """The rule as deploy.json states it: the reference re-implements it from the data and
+    takes the project's actors' actions step for step (maif-10's actor on maif-16, where its
+    robots need the rule), and its per-robot rule equals FinalApproach on real observations."""
+    run_policy = reference()
+    folder = final_approach_model(tmp_path, "maif-16")
+    contract = json.loads((folder / FILE_NAME).read_text())
+    assert contract["mode"]["final_approach"] is True
+    assert contract["final_approach"]["constants"]["grid_size"] == 48
+    make = dict(seed=5, instance_set="heldout", instance_order="round_robin", instance_ids=[0],
+                max_steps=120)
+    env_a, env_b = parallel_env("maif-16", **make), parallel_env("maif-16", **make)
+    n = len(env_a.possible_agents)
+    ours, _ = play_project(env_a, project_team(folder, n, seed=11))
+    theirs, _ = run_policy.run_episode(env_b, run_policy.DeployedTeam(folder, n, seed=11))
+    for t, (a, b) in enumerate(zip(ours, theirs, strict=True)):
+        assert np.array_equal(a, b), f"step {t}: {a} vs {b}"
+    # the rule alone, where it fires often: random actions and sampling flags
+    rule, theirs_rule = FinalApproach(48), run_policy.FinalApproach(contract["final_approach"])
+    env = parallel_env("maif-16", seed=1, instance_set="heldout")
+    obs, _ = env.reset()
+    rng = np.random.default_rng(0)
+    walker = GreedyPolicy(0)
+    changed = 0
+    for _ in range(150):
+        o = np.stack([obs[a] for a in env.possible_agents])
+        act, sampled = rng.integers(0, 5, n), rng.random(n) < 0.3
+        want = rule.apply(o, act, sampled)
+        got = [theirs_rule.apply(o[i], int(act[i]), bool(sampled[i])) for i in range(n)]
+        assert want.tolist() == got
+        changed += int(np.sum(want != act))
+        # the scripted walker mostly, so that robots arrive and stand on their goals
+        joint = np.where(rng.random(n) < 0.8, walker.act(o), rng.integers(0, 5, n))
+        obs, *_rest = env.step({a: int(joint[i]) for i, a in enumerate(env.possible_agents)})
+        if not env.agents:
+            obs, _ = env.reset()
+    assert changed > 0, "the rule never fired: the comparison proved nothing"
 
 
 def test_deploy_json_is_the_exports_output() -> None:

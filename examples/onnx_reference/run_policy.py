@@ -2,7 +2,8 @@
 """Deploy a shipped sdhn policy from its folder alone: ``actor.onnx``, ``actor.onnx.json`` and
 ``deploy.json``, with NumPy and onnxruntime. No sdhn code decides an action here: everything the
 project's actor does (GRU state, feature-free raw input, argmax or sampling, the stall rule, the
-random stream) is re-implemented from the JSON, as a C++ or other-language port would do it.
+final approach, the random stream) is re-implemented from the JSON, as a C++ or other-language
+port would do it.
 
     python examples/onnx_reference/run_policy.py models/maif-10-sdhn --instances 50
     python examples/onnx_reference/run_policy.py models/maif-10-sdhn --set heldout_large \\
@@ -65,6 +66,27 @@ class StallRule:
         return sample
 
 
+class FinalApproach:
+    """``deploy.json["final_approach"]`` for one robot: capture and hold, as listed."""
+
+    def __init__(self, spec: dict[str, Any]) -> None:
+        c = spec["constants"]
+        self.size, self.window = int(c["grid_size"]), int(c["window_size"])
+        self.pos, self.goal = c["position_indices"], c["goal_indices"]
+        self.centre = int(c["centre_index"])
+        self.free, self.stay = float(c["free_cell"]), int(c["stay"])
+        self.move = {tuple(d): int(a) for a, d in c["action_deltas (dx, dy)"].items()}
+
+    def apply(self, obs: np.ndarray, action: int, sampled: bool) -> int:
+        offset = (obs[self.goal] - obs[self.pos]) * np.float32(self.size - 1)  # float32
+        dx, dy = (int(v) for v in np.rint(offset))
+        if abs(dx) + abs(dy) == 1 and obs[self.centre + dx + dy * self.window] == self.free:
+            return self.move[(dx, dy)]
+        if dx == 0 and dy == 0 and not sampled:
+            return self.stay
+        return action
+
+
 def log_softmax32(logits: np.ndarray) -> np.ndarray:
     z = logits - logits.max(axis=-1, keepdims=True)
     return (z - np.log(np.exp(z).sum(axis=-1, keepdims=True))).astype(np.float32)
@@ -96,6 +118,8 @@ class DeployedTeam:
         self.rngs = [np.random.default_rng([seed, i]) for i in range(num_robots)]
         stall = self.contract.get("stall_breaking")
         self.stalls = [StallRule(stall) for _ in range(num_robots)] if stall else None
+        approach = self.contract.get("final_approach")
+        self.approach = FinalApproach(approach) if approach else None
         self.hidden = np.zeros((num_robots, self.hidden_size), np.float32)
         self.sampled = 0  # decisions drawn from the policy (not argmax), for reports and tests
 
@@ -119,6 +143,8 @@ class DeployedTeam:
                 greedy, temperature = False, self.stalls[i].temperature
             actions[i] = int(logp[i].argmax()) if greedy else sample(logp[i], temperature,
                                                                       self.rngs[i])
+            if self.approach is not None:  # after stall breaking: is this step sampled?
+                actions[i] = self.approach.apply(obs[i], int(actions[i]), not greedy)
             self.sampled += not greedy
         return actions
 

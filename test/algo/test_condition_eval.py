@@ -63,6 +63,40 @@ def test_card_mode_reads_the_deployment_mode() -> None:
         Mode(greedy=False, stall=StallRule()).check()
 
 
+def test_the_final_approach_in_the_ideal_world_is_the_evaluation_s() -> None:
+    """Mode(approach=True) plays as evaluate_set(approach=True) does, instance by instance; a
+    card that deploys it is read so; the rule needs stall breaking."""
+    from sdhn_experiments.heldout_eval import evaluate_set
+
+    rt = ActorRuntime.from_file(ACTOR)
+    rule = StallRule.parse("2,10,2")
+    got = evaluate_under(rt, "maif-tiny", Conditions(), Mode(stall=rule, approach=True),
+                         which="heldout", max_steps=60)
+    want = evaluate_set(rt, "maif-tiny", "heldout", stall=rule, approach=True, max_steps=60)
+    assert [(r.success, r.makespan) for r in got] == [(r.success, r.makespan) for r in want]
+    plain = evaluate_under(rt, "maif-tiny", Conditions(), Mode(stall=rule), which="heldout",
+                           max_steps=60)
+    assert [r.makespan for r in plain] != [r.makespan for r in got], "the rule changed nothing"
+    assert Mode(stall=rule, approach=True).label() == \
+        "greedy, stall breaking 2,10,2, final approach"
+    with pytest.raises(ValueError, match="requires stall breaking"):
+        Mode(approach=True).check()
+
+
+def test_card_mode_reads_the_final_approach(tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    model = tmp_path / "m"
+    shutil.copytree("models/maif-10-sdhn", model)
+    card = json.loads((model / "card.json").read_text())
+    card["heldout_large"]["deploy"]["final_approach"] = True
+    (model / "card.json").write_text(json.dumps(card))
+    m = card_mode(model)
+    assert m.approach and m.stall == StallRule.parse("2,10,2")
+    assert not card_mode("models/maif-10-sdhn").approach
+
+
 def test_dead_reckoning_holds_up_under_two_steps_of_latency() -> None:
     rt = ActorRuntime.from_file(ACTOR)
     mode = Mode(stall=StallRule())

@@ -31,8 +31,9 @@ the conditions let its action through (the same draws); the team's time is its s
 No policy completes an instance under those draws sooner, so its ratio to its ideal (the longest
 shortest path) is the delay the condition itself imposes on the critical path.
 
-Deployment modes (``Mode``): greedy, greedy with stall breaking (``StallRule``), sampled at a
-temperature, each optionally with dead reckoning (``sdhn_policy.dead_reckoning``: the robot moves
+Deployment modes (``Mode``): greedy, greedy with stall breaking (``StallRule``; optionally with
+the final approach after it, ``sdhn_policy.final_approach``), sampled at a temperature, each
+optionally with dead reckoning (``sdhn_policy.dead_reckoning``: the robot moves
 its stale observation forward by the actions it sent since).
 """
 
@@ -51,6 +52,7 @@ from scipy import stats
 from sdhn_experiments.heldout_eval import Policy, map_bootstrap_interval, set_instances
 from sdhn_policy.actor_runtime import check_temperature
 from sdhn_policy.dead_reckoning import DeadReckoner
+from sdhn_policy.final_approach import FinalApproach
 from sdhn_policy.stall_breaker import StallBreaker, StallRule
 from sdhn_sim.envs.conditions import STAY, ConditionedEnv, ConditionModel, Conditions
 from sdhn_sim.envs.maif import ACTION_DELTAS, MaifEnv, MaifWorld
@@ -66,18 +68,22 @@ class Mode:
     greedy: bool = True
     temperature: float = 1.0  # sampled play (greedy false)
     stall: StallRule | None = None  # greedy with stall breaking
+    approach: bool = False  # with stall breaking: the final approach after it
     dead_reckon: bool = False
 
     def label(self) -> str:
         base = ("greedy" if self.greedy and self.stall is None else
                 f"greedy, stall breaking {self.stall.text()}" if self.greedy and self.stall
                 else f"sampled at T={self.temperature:g}")
-        return base + (", dead reckoning" if self.dead_reckon else "")
+        return (base + (", final approach" if self.approach else "")
+                + (", dead reckoning" if self.dead_reckon else ""))
 
     def check(self) -> Mode:
         check_temperature(self.temperature)
         if self.stall is not None and not self.greedy:
             raise ValueError("mode: stall breaking is a greedy mode (greedy must be true)")
+        if self.approach and self.stall is None:
+            raise ValueError("mode: the final approach requires stall breaking")
         return self
 
 
@@ -88,8 +94,8 @@ def card_mode(model_dir: str | Path) -> Mode:
     if d is None:
         return Mode()
     return Mode(greedy=bool(d["greedy"]), temperature=float(d.get("temperature", 1.0)),
-                stall=StallRule.of_mode(d), dead_reckon=bool(d.get("dead_reckoning", False))
-                ).check()
+                stall=StallRule.of_mode(d), approach=bool(d.get("final_approach", False)),
+                dead_reckon=bool(d.get("dead_reckoning", False))).check()
 
 
 @dataclass(frozen=True)
@@ -134,6 +140,7 @@ def evaluate_under(policy: Policy, task: str, cond: Conditions, mode: Mode, *,
     ids = np.tile(np.arange(n), b) if policy.spec.use_robot_id else None
     rng = np.random.default_rng(seed)
     breaker = StallBreaker(mode.stall, b * n) if mode.stall is not None else None
+    approach = FinalApproach(base.size) if mode.approach else None
     dr = DeadReckoner(b * n, base.size) if mode.dead_reckon else None
     out: dict[int, ConditionResult] = {}
     while len(out) < b:
@@ -144,6 +151,8 @@ def evaluate_under(policy: Policy, task: str, cond: Conditions, mode: Mode, *,
                                     temperature=mode.temperature)
         if breaker is not None:
             act = breaker.resample(policy, flat, h, act, rng=rng, robot_id=ids)
+            if approach is not None:
+                act = approach.apply(flat, act, breaker.sampling)
         h = h_next
         if dr is not None:
             dr.record(act)

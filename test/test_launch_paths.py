@@ -67,6 +67,8 @@ def test_the_launcher_runs_a_shipped_graph_from_another_directory(tmp_path: Path
 @pytest.mark.parametrize(("sets", "says"), [
     ([], "greedy, with stall breaking (rule 2,10,2), with dead reckoning"),  # the card's mode
     (["dead_reckoning=false"], "greedy, with stall breaking (rule 2,10,2)"),
+    (["final_approach=true", "dead_reckoning=false"],
+     "greedy, with stall breaking (rule 2,10,2) and the final approach"),
     (["break_stalls=false", "stall_rule=", "dead_reckoning=false"], "greedy"),
     (["break_stalls=false", "stall_rule=", "greedy=false", "temperature=0.5",
       "dead_reckoning=false"], "sampled at temperature 0.5"),

@@ -109,3 +109,23 @@ def test_card_recommends_the_final_approach(tmp_path: Path,
                       "break-stalls", "--no-planner"]) == 0
     contract = json.loads((model / "deploy.json").read_text())
     assert "final_approach" not in contract and "final_approach" not in contract["mode"]
+
+
+def test_only_the_recommended_mode(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """--only-deploy: the recommended mode is measured and recorded alone (a fleet's modes cost
+    half an hour each), and it is still the one the card recommends."""
+    card = card_heldout
+    monkeypatch.setattr(card, "SET", "heldout")
+    model = tmp_path / "maif-solo-mappo"
+    shutil.copytree(MODEL, model)
+    assert card.main([str(model), "--break-stalls", "2,10,2", "--final-approach",
+                      "--only-deploy", "--no-planner"]) == 0
+    entry = json.loads((model / "card.json").read_text())["heldout_large"]
+    assert list(entry["modes"]) == ["greedy, stall breaking 2,10,2, final approach"]
+    assert entry["deploy"]["final_approach"] is True
+    assert card.main([str(model), "--temperature", "0.5", "--only-deploy", "--no-planner"]) == 0
+    entry = json.loads((model / "card.json").read_text())["heldout_large"]
+    assert list(entry["modes"]) == ["sampled at T=0.5"]
+    assert card.main([str(model), "--only-deploy", "--no-planner"]) == 0
+    assert list(json.loads((model / "card.json").read_text())["heldout_large"]["modes"]) == \
+        ["greedy"]

@@ -17,8 +17,14 @@ Which topics, with which QoS:
   ``policy/weights`` (LATCHED_RECORDER: the latest version is received even if it was published
   before the recorder started, and versions published back to back are all kept), ``hypergraph``
   (SENSOR). As soon as any ``robot_<i>/...`` topic is seen (a publisher *or* a subscriber, e.g.
-  the trainer's), both ``robot_<i>/obs`` and ``robot_<i>/action`` are subscribed (STEP), before
-  that robot's first message.
+  the trainer's), ``robot_<i>/action`` is subscribed (STEP), before that robot's first message.
+  ``robot_<i>/obs`` (STEP) follows once that action subscription has a matched publisher (polled
+  every ``HOLD_POLL_S``): the simulator starts step 0 only when every obs topic has all its
+  subscribers (``extra_subscribers`` counts the recorder), so holding the recorder's obs
+  subscription back makes it wait until the actor's action writer reaches the recorder too; else
+  at several hundred steps a second a match a few milliseconds late lost a robot's first actions
+  from the file. A robot whose actions nobody else subscribes to (no simulator waiting for them,
+  e.g. a ``ros2 bag play`` of observations alone) is not held past the next discovery round.
 - Any other topic under ``team_ns`` is found by discovery every ``DISCOVERY_PERIOD_S`` and
   subscribed with the named profile that matches its publishers (transient-local ->
   LATCHED_RECORDER, best-effort -> SENSOR, else STEP); a topic with no publisher yet waits for the
@@ -71,6 +77,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from rclpy.timer import Timer
 
 from sdhn_base.diagnostics import ERROR, OK, Report, WindowCounts, drop_values, make_report
 from sdhn_base.drops import DropKind
@@ -86,6 +93,7 @@ from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg
 from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5
+HOLD_POLL_S = 0.01  # while a robot's obs subscription waits for its action publisher
 VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
 STATUS_PERIOD_S = 5.0
 CONTRACT_TOPICS = {  # relative to team_ns: (type, the recorder's profile, the publisher's)
@@ -208,11 +216,15 @@ class RecorderNode(Node):
         self._discovered: dict[str, tuple[list[QoSProfile], str]] = {}  # topic -> as seen
         self._subs: dict[str, Any] = {}
         self._robots: set[int] = set()
+        # robot -> (its obs topic, its action topic, discovery rounds held): obs not subscribed
+        # until the action subscription has matched a publisher (module docstring)
+        self._held: dict[int, tuple[str, str, int]] = {}
         self._t0 = time.monotonic()
         self._bytes = 0
         self._last_status = ""
         for rel, (type_name, profile, offered) in CONTRACT_TOPICS.items():
             self.record(topics.absolute(self.ns, rel), type_name, profile, offered)
+        self._hold_timer: Timer | None = None  # exists only while a robot is held
         self.discover()
         self.create_timer(DISCOVERY_PERIOD_S, self.discover)
         self.create_timer(STATUS_PERIOD_S, self.log_status)
@@ -242,25 +254,54 @@ class RecorderNode(Node):
             self._publisher_qos[topic] = offered
 
     def discover(self) -> None:
+        self._held = {i: (obs, action, rounds + 1)
+                      for i, (obs, action, rounds) in self._held.items()}
         for topic, types in self.get_topic_names_and_types():
             rel = topics.relative_to(self.ns, topic)
             if rel is None or topic in self._subs or topic in self.skipped or derived(rel):
                 continue
             robot = topics.robot_of(rel)
             if robot and robot[0] not in self._robots:
-                i = robot[0]
-                self._robots.add(i)
-                for kind, type_name in ROBOT_TOPICS.items():
-                    self.record(topics.absolute(self.ns, f"{topics.robot(i)}/{kind}"),
-                                type_name, STEP, STEP)
-                if topic in self._subs:
-                    continue
+                self.first_sight(robot[0])
+                if topic in self._subs or robot[1] == topics.OBS:
+                    continue  # robot_<i>/obs waits in self._held
+            if robot and robot[1] == topics.OBS:
+                continue  # a robot's obs topic is subscribed by release_held only
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers or len(types) != 1:
                 continue  # nobody publishes yet (or ambiguous types): next round
             offers = [p.qos_profile for p in publishers]
             self._discovered[topic] = (offers, type_hash_text(publishers[0].topic_type_hash))
             self.record(topic, types[0], profile_for(offers))
+        self.release_held()
+
+    def first_sight(self, i: int) -> None:
+        """Subscribe robot ``i``'s action topic now and hold its obs topic back."""
+        self._robots.add(i)
+        obs, action = (topics.absolute(self.ns, topics.robot_obs(i)),
+                       topics.absolute(self.ns, topics.robot_action(i)))
+        self.record(action, ROBOT_TOPICS[topics.ACTION], STEP, STEP)
+        self._held[i] = (obs, action, 0)
+        self.release_held()
+
+    def release_held(self) -> None:
+        """Subscribe every held obs topic whose robot's action subscription has matched a
+        publisher; or that nobody else waits for actions on (after a whole discovery round, so
+        that a simulator whose action subscription is discovered after its obs publisher is
+        not taken for an actor-less graph); or that has no action subscription to wait on."""
+        for i, (obs, action, rounds) in list(self._held.items()):
+            sub = self._subs.get(action)
+            if (sub is None or sub.get_publisher_count() >= 1
+                    or (rounds >= 1 and self.count_subscribers(action) <= 1)):
+                del self._held[i]
+                self.record(obs, ROBOT_TOPICS[topics.OBS], STEP, STEP)
+        # Created and destroyed rather than cancelled and reset: robots appear at start-up only,
+        # and the recorder then runs no timer at the loop's rate.
+        if self._held and self._hold_timer is None:
+            self._hold_timer = self.create_timer(HOLD_POLL_S, self.release_held)
+        elif not self._held and self._hold_timer is not None:
+            self.destroy_timer(self._hold_timer)
+            self._hold_timer = None
 
     def describe(self, topic: str) -> tuple[list[QoSProfile], str]:
         """(offered QoS of every publisher, type hash) for ``topic``'s channel: from the graph

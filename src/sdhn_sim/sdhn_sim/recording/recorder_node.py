@@ -18,13 +18,16 @@ Which topics, with which QoS:
   before the recorder started, and versions published back to back are all kept), ``hypergraph``
   (SENSOR). As soon as any ``robot_<i>/...`` topic is seen (a publisher *or* a subscriber, e.g.
   the trainer's), ``robot_<i>/action`` is subscribed (STEP), before that robot's first message.
-  ``robot_<i>/obs`` (STEP) follows once that action subscription has a matched publisher (polled
-  every ``HOLD_POLL_S``): the simulator starts step 0 only when every obs topic has all its
-  subscribers (``extra_subscribers`` counts the recorder), so holding the recorder's obs
-  subscription back makes it wait until the actor's action writer reaches the recorder too; else
-  at several hundred steps a second a match a few milliseconds late lost a robot's first actions
-  from the file. A robot whose actions nobody else subscribes to (no simulator waiting for them,
-  e.g. a ``ros2 bag play`` of observations alone) is not held past the next discovery round.
+  ``robot_<i>/obs`` (STEP) follows once that action subscription has a matched publisher and
+  has existed for ``HOLD_SETTLE_S`` (polled every ``HOLD_POLL_S``). The simulator starts step 0
+  only when every obs topic has all its subscribers (``extra_subscribers`` counts the recorder),
+  so holding the recorder's obs subscription back makes it wait until the actor's action writer
+  reaches the recorder too; else at several hundred steps a second a match a few milliseconds
+  late lost a robot's first actions from the file. The settle time is for an actor whose writer
+  existed first: the matched count is the reader's side, and such a writer matches the reader
+  only once the reader's announcement reaches the actor's process. A robot whose actions nobody
+  else subscribes to (no simulator waiting for them, e.g. a ``ros2 bag play`` of observations
+  alone) is not held past ``DISCOVERY_PERIOD_S``.
 - Any other topic under ``team_ns`` is found by discovery every ``DISCOVERY_PERIOD_S`` and
   subscribed with the named profile that matches its publishers (transient-local ->
   LATCHED_RECORDER, best-effort -> SENSOR, else STEP); a topic with no publisher yet waits for the
@@ -94,6 +97,10 @@ from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5
 HOLD_POLL_S = 0.01  # while a robot's obs subscription waits for its action publisher
+# How long the recorder's action subscription must have existed before a match releases the
+# robot's obs: the subscription's matched count is the reader's side; an actor writer that
+# existed first matches the reader only when the reader's announcement reaches its process.
+HOLD_SETTLE_S = 0.5
 VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
 STATUS_PERIOD_S = 5.0
 CONTRACT_TOPICS = {  # relative to team_ns: (type, the recorder's profile, the publisher's)
@@ -216,9 +223,9 @@ class RecorderNode(Node):
         self._discovered: dict[str, tuple[list[QoSProfile], str]] = {}  # topic -> as seen
         self._subs: dict[str, Any] = {}
         self._robots: set[int] = set()
-        # robot -> (its obs topic, its action topic, discovery rounds held): obs not subscribed
-        # until the action subscription has matched a publisher (module docstring)
-        self._held: dict[int, tuple[str, str, int]] = {}
+        # robot -> (its obs topic, its action topic, monotonic time the action subscription was
+        # created): obs not subscribed until it has matched a publisher (module docstring)
+        self._held: dict[int, tuple[str, str, float]] = {}
         self._t0 = time.monotonic()
         self._bytes = 0
         self._last_status = ""
@@ -254,8 +261,6 @@ class RecorderNode(Node):
             self._publisher_qos[topic] = offered
 
     def discover(self) -> None:
-        self._held = {i: (obs, action, rounds + 1)
-                      for i, (obs, action, rounds) in self._held.items()}
         for topic, types in self.get_topic_names_and_types():
             rel = topics.relative_to(self.ns, topic)
             if rel is None or topic in self._subs or topic in self.skipped or derived(rel):
@@ -281,18 +286,22 @@ class RecorderNode(Node):
         obs, action = (topics.absolute(self.ns, topics.robot_obs(i)),
                        topics.absolute(self.ns, topics.robot_action(i)))
         self.record(action, ROBOT_TOPICS[topics.ACTION], STEP, STEP)
-        self._held[i] = (obs, action, 0)
+        self._held[i] = (obs, action, time.monotonic())
         self.release_held()
 
     def release_held(self) -> None:
         """Subscribe every held obs topic whose robot's action subscription has matched a
-        publisher; or that nobody else waits for actions on (after a whole discovery round, so
-        that a simulator whose action subscription is discovered after its obs publisher is
-        not taken for an actor-less graph); or that has no action subscription to wait on."""
-        for i, (obs, action, rounds) in list(self._held.items()):
+        publisher and existed for HOLD_SETTLE_S; or that nobody else waits for actions on
+        (after a discovery period, so that a simulator whose action subscription is discovered
+        after its obs publisher is not taken for an actor-less graph); or that has no action
+        subscription to wait on."""
+        now = time.monotonic()
+        for i, (obs, action, since) in list(self._held.items()):
             sub = self._subs.get(action)
-            if (sub is None or sub.get_publisher_count() >= 1
-                    or (rounds >= 1 and self.count_subscribers(action) <= 1)):
+            if (sub is None
+                    or (sub.get_publisher_count() >= 1 and now - since >= HOLD_SETTLE_S)
+                    or (now - since >= DISCOVERY_PERIOD_S
+                        and self.count_subscribers(action) <= 1)):
                 del self._held[i]
                 self.record(obs, ROBOT_TOPICS[topics.OBS], STEP, STEP)
         # Created and destroyed rather than cancelled and reset: robots appear at start-up only,

@@ -298,12 +298,20 @@ class RecorderNode(Node):
         now = time.monotonic()
         for i, (obs, action, since) in list(self._held.items()):
             sub = self._subs.get(action)
-            if (sub is None
-                    or (sub.get_publisher_count() >= 1 and now - since >= HOLD_SETTLE_S)
-                    or (now - since >= DISCOVERY_PERIOD_S
-                        and self.count_subscribers(action) <= 1)):
-                del self._held[i]
-                self.record(obs, ROBOT_TOPICS[topics.OBS], STEP, STEP)
+            if sub is None:
+                why = "no action subscription"
+            elif sub.get_publisher_count() >= 1 and now - since >= HOLD_SETTLE_S:
+                why = "its action publisher matched"
+            elif now - since >= DISCOVERY_PERIOD_S and self.count_subscribers(action) <= 1:
+                why = "no one else subscribes to its actions"
+            else:
+                continue
+            del self._held[i]
+            self.record(obs, ROBOT_TOPICS[topics.OBS], STEP, STEP)
+            # Which rule released it, and when: what to look at if a robot's first actions are
+            # missing from a recording.
+            self.get_logger().info(f"{topics.robot(i)}: obs subscribed after "
+                                   f"{now - since:.2f}s ({why})")
         # Created and destroyed rather than cancelled and reset: robots appear at start-up only,
         # and the recorder then runs no timer at the loop's rate.
         if self._held and self._hold_timer is None:

@@ -202,7 +202,16 @@ def test_trainer_killed_actors_keep_acting_and_restart_resumes(graph) -> None:
               f"it was down (versions {versions_during}); published versions {versions}")
     print(report)
     assert len(acting) > 0 and len(during) >= N, report
-    assert versions_during and versions_during[0] >= v_pub - 1, report
+    # Every actor goes on with the weights it had (or ones still in flight at the kill), never
+    # older ones. Not "at least v_pub - 1" for all: under load an actor can be two versions
+    # behind when the trainer dies, its reliable writer going with it (versions [1, 3] at v3,
+    # load ~10, 7 Dec 2026).
+    for i in range(N):
+        had = max((int(r.msg.policy_version) for r in seen.actions[i] if r.t <= t_kill),
+                  default=0)
+        used = sorted({int(r.msg.policy_version) for r in seen.actions[i]
+                       if t_kill < r.t < t_ready})
+        assert used and used[0] >= had, f"{report}; robot {i}: v{had} before the kill, {used} after"
     assert f"version={v_ckpt} (resumed from step_" in lines[0].text, report
     assert v_ckpt >= v_pub, report
     assert all(b >= a for a, b in itertools.pairwise(versions)), report

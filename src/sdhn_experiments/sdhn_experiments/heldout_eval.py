@@ -108,7 +108,7 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
     if approach and stall is None:
         raise ValueError("final approach requires stall breaking (stall): its hold would "
                          "deadlock corridors without it")
-    capture = FinalApproach.for_env(task) if approach else None
+    rule = FinalApproach.for_env(task) if approach else None
     inst = set_instances(task, which)
     b = inst.num_instances
     env = MaifEnv(inst, num_envs=b, seed=seed, name=task, instance_order="round_robin",
@@ -134,8 +134,8 @@ def evaluate_set(policy: Policy, task: str, which: str, *, sample: bool = False,
                 act = np.where(stuck.reshape(-1), drawn, act)
         if breaker is not None:
             act = breaker.resample(policy, flat, h, act, rng=rng, robot_id=ids)
-            if capture is not None:
-                act = capture.apply(flat, act, breaker.sampling)
+            if rule is not None:
+                act = rule.apply(flat, act, breaker.sampling)
         h = h_next
         res = env.step(act.reshape(b, n))
         after = env.positions

@@ -14,10 +14,11 @@ A robot two or more cells from its goal acts as the policy (and stall breaking) 
 Why (docs/fleets.md, "Why it wanders"): the maif-20 actor, run on maif-100, brings its robots
 within a cell or two of their goals but fails the last step when the goal lies above or to the
 left (out of its training distribution: MAIF's goals lie below and to the right of the starts),
-and on-goal robots drift off 7 % of steps. Measured by the lead on 7 Dec 2026 (greedy with stall
-breaking 2,10,2, NumPy runtime, 500-step limit), maif-20 actor on maif-100's held-out set (100
-instances): success 0.12 without the rule, 0.82 with capture only, 0.91 with capture and hold;
-on maif-20's own held-out set 1.00 with or without it (makespan 139.3 -> 132.9).
+and on-goal robots drift off 7 % of steps. Measured on 7 Dec 2026 (greedy with stall breaking
+2,10,2, NumPy runtime, 500-step limit), the maif-20 actor on maif-100: 0.12 without the rule, 0.84
+with capture only and 0.93 with capture and hold on the first 100 validation instances (where the
+rule was chosen), 0.922 [0.900, 0.942] with both on the 1,000-instance large held-out set; on
+maif-20's own held-out set 1.00 with or without it (makespan 139.3 -> 132.9).
 
 Layout read (``sdhn_sim.envs.maif``; docs/maif.md): own position at obs[0:2] and goal at
 obs[4:6], both cell index / (size - 1); the 7x7 window from index ``COORD_FEATURES``, row-major

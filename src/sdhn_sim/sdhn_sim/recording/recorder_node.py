@@ -267,11 +267,9 @@ class RecorderNode(Node):
                 continue
             robot = topics.robot_of(rel)
             if robot and robot[0] not in self._robots:
-                self.first_sight(robot[0])
-                if topic in self._subs or robot[1] == topics.OBS:
-                    continue  # robot_<i>/obs waits in self._held
-            if robot and robot[1] == topics.OBS:
-                continue  # a robot's obs topic is subscribed by release_held only
+                self.first_sight(robot[0])  # subscribes its action topic, holds its obs topic
+            if topic in self._subs or (robot and robot[1] == topics.OBS):
+                continue  # subscribed just now, or robot_<i>/obs: release_held subscribes it
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers or len(types) != 1:
                 continue  # nobody publishes yet (or ambiguous types): next round

@@ -37,7 +37,8 @@ def test_ros_deploy_actions_equal_inprocess_greedy_rollout(weights: Path, backen
         spec, tensors = decode_weights(blob)
         weights_file = write_onnx(weights.with_name("actor.onnx"), spec, tensors, "maif",
                                   blob.version)
-    actors = [actor_cmd(i, N, ns, weights_file=weights_file, greedy=True, backend=backend)
+    actors = [actor_cmd(i, N, ns, weights_file=weights_file, greedy=True, backend=backend,
+                        action_readers=2)  # the simulator and the observer
               for i in range(N)]
     with observer(N, ns) as (node, seen, spin), node_processes(*actors) as procs:
         actions = [topics.absolute(ns, topics.robot_action(i)) for i in range(N)]
@@ -88,7 +89,8 @@ def test_rware_ros_deploy_equals_inprocess_greedy_rollout(tmp_path: Path, gru_hi
     else:
         pytest.fail("no random init of 20 gives a policy that uses 3 actions")
     ns = f"/sdhn_equal_rware_{gru_hidden}"
-    actors = [actor_cmd(i, n, ns, weights_file=weights, greedy=True) for i in range(n)]
+    actors = [actor_cmd(i, n, ns, weights_file=weights, greedy=True, action_readers=2)
+              for i in range(n)]  # action readers: the simulator and the observer
     with observer(n, ns) as (node, seen, spin), node_processes(*actors) as procs:
         actions = [topics.absolute(ns, topics.robot_action(i)) for i in range(n)]
         assert spin(30, lambda: all(node.count_publishers(t) >= 1 for t in actions)), [

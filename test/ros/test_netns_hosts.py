@@ -69,7 +69,8 @@ def test_deploy_across_namespaces_equals_inprocess_greedy_rollout(
         env = host_env(net, static_peers=discovery == "static_peers")
         out = tmp_path / "seen.json"
         actors = [net.hosts[f"actor{i}"].exec(
-            actor_cmd(i, N, ns, weights_file=weights, greedy=True), env) for i in range(N)]
+            actor_cmd(i, N, ns, weights_file=weights, greedy=True, action_readers=2), env)
+            for i in range(N)]  # action readers: the simulator and the observer
         with node_processes(_observer_cmd(net, env, ns, out, episodes), *actors) as procs:
             obs = procs[0]
             assert obs.wait_for_line("observer: actors seen", 90), obs.output
@@ -146,7 +147,9 @@ def _fault_run(weights: Path, tmp_path: Path, ns: str, fault: Callable[[Net], No
         recorder = on("recorder", "recorder", [
             *ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-r", f"__ns:={ns}",
             "-p", f"team_ns:={ns}", "-p", f"output:={mcap}", "-p", "viz:=false"])
-        actors = [on(f"actor{i}", f"actor_{i}", actor_cmd(i, N, ns, seed=i)) for i in range(N)]
+        # action readers: the simulator, the trainer and the recorder
+        actors = [on(f"actor{i}", f"actor_{i}", actor_cmd(i, N, ns, seed=i, action_readers=3))
+                  for i in range(N)]
         with node_processes(trainer, recorder, *actors) as procs:
             for p in procs:
                 assert p.wait_for_line("ready", 90), p.output

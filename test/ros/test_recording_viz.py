@@ -77,7 +77,10 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     recorders = [[*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={out}",
                   "-p", f"team_ns:={TEAM_NS}", *extra]
                  for out, extra in ((viz, ["-p", "viz:=true"]), (plain, ["-p", "viz:=false"]))]
-    actors = [actor_cmd(i, N, weights_file=weights, seed=i) for i in range(N)]
+    # action readers: the simulator and both recorders (each actor holds its obs subscription
+    # until its action writer has matched all three)
+    actors = [actor_cmd(i, N, weights_file=weights, seed=i, action_readers=3)
+              for i in range(N)]
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node("vizrec_hypergraphs", context=context)

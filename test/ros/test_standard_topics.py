@@ -77,8 +77,9 @@ def test_diagnostics_poses_and_target_poses(weights: Path, tmp_path: Path) -> No
                 "-p", f"team_ns:={NS}", "-p", f"output:={tmp_path / 'run.mcap'}"]
     cmds = [sim_cmd(ns=NS, episodes=0, max_steps=30, step_deadline=0.5, seed=5,
                     extra_subscribers=1),
-            recorder, *(actor_cmd(i, N, NS, weights_file=weights, env="maif-tiny")
-                        for i in range(N))]
+            # action readers: the simulator, the recorder and this test's node
+            recorder, *(actor_cmd(i, N, NS, weights_file=weights, env="maif-tiny",
+                                  action_readers=3) for i in range(N))]
     try:
         with node_processes(*cmds) as procs:
             def enough() -> bool:

@@ -46,7 +46,9 @@ def train_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TrainRun]:
     run_dir, recording = tmp / "run", tmp / "run.mcap"
     trainer = tiny_trainer(run_dir, config)
     recorder = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={recording}"]
-    actors = [actor_cmd(i, N, seed=i) for i in range(N)]  # no weights_file: wait for the trainer
+    # no weights_file: wait for the trainer; action readers: the simulator, the trainer, the
+    # recorder and the observer
+    actors = [actor_cmd(i, N, seed=i, action_readers=4) for i in range(N)]
     with observer(N) as (_node, seen, spin), \
             node_processes(trainer, recorder, *actors) as procs:
         for p in procs:

@@ -29,7 +29,8 @@ def test_every_sim_step_is_a_transition_or_a_counted_drop(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     trainer_args, status = status_watched_trainer(tmp_path, monkeypatch, NS)
     events = tmp_path / "sim-events.jsonl"
-    actors = [actor_cmd(i, N, ns=NS, seed=i) for i in range(N)]
+    actors = [actor_cmd(i, N, ns=NS, seed=i, action_readers=2)  # the simulator, the trainer
+              for i in range(N)]
     with node_processes(trainer_args, *actors) as procs:
         trainer, victim = procs[0], procs[N]
         for p in procs:

@@ -71,7 +71,11 @@ def node_parameters(cfg: LaunchConfig) -> NodeParameters:
             "final_approach": bool(cfg.final_approach and cfg.break_stalls
                                    and cfg.mode == "deploy"),
             "env": cfg.env, "managed": cfg.managed, "realtime": cfg.clock == "realtime",
-            "dead_reckoning": bool(cfg.dead_reckoning and cfg.mode == "deploy")}
+            "dead_reckoning": bool(cfg.dead_reckoning and cfg.mode == "deploy"),
+            # the readers of its actions the simulator waits for before step 0: itself and the
+            # extra subscribers (the actor holds its obs subscription until its writer has
+            # matched them all; sdhn_policy.actor_node)
+            "action_readers": 1 + extra}
     return nodes
 
 

@@ -18,6 +18,19 @@ and bad weights end it with exit 2. The obs subscription and the action publishe
 the node is active *and* holds weights, so the simulator, which waits for both before step 0,
 never starts a step this actor cannot answer.
 
+The obs subscription also waits for the action publisher's own side of matching: it is created
+only once ``get_subscription_count()`` (the writer's matched readers) reaches ``action_readers``,
+the nodes that read this robot's actions (1, the simulator; the launcher adds the recorder node
+and the trainer). DDS matches each side on its own: a reader can count this writer before the
+writer has matched it, and until then the writer sends that reader nothing. The simulator starts
+step 0 only when every obs topic has all its subscribers, so holding this one back means every
+reader of the actions has this robot's from step 0 (else, at several hundred steps a second, a
+robot's first 1-8 actions were lost to the recording and the trainer). The wait is bounded by
+``action_readers_timeout``: then a warning names the readers this process knows of and the obs
+subscription is created anyway, so an actor restarted while a reader is gone for good (a dead
+recorder) still comes back. A restarted actor waits as at start-up: the readers are there, and
+its writer matches them within a discovery round.
+
 Beside ours, two standard streams: ``robot_<i>/target_pose`` (``geometry_msgs/PoseStamped``, the
 cell the chosen action moves to, frame ``map``; needs ``env`` to read the cell from the
 observation; published only while someone subscribes) and ``/diagnostics`` (decision latency
@@ -44,6 +57,7 @@ from rclpy.lifecycle import (
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 
 from sdhn_base.diagnostics import (
     OK,
@@ -102,6 +116,14 @@ PARAMETERS = {
                                       "this robot's actions (RobotObservation.obs_age) forward "
                                       "by the actions it sent since (sdhn_policy.dead_reckoning);"
                                       " changes nothing on a current one")),
+    "action_readers": (1, integer("nodes that subscribe to this robot's actions (1 = the "
+                                  "simulator; the launcher adds the recorder node and the "
+                                  "trainer): the obs subscription is created only once the action "
+                                  "publisher has matched this many, so none of them misses the "
+                                  "first actions; 0 = no wait", 0, 1000)),
+    "action_readers_timeout": (30.0, floating("seconds to wait for action_readers; then a "
+                                              "warning names what is missing and the obs "
+                                              "subscription is created anyway", 0.0, 3600.0)),
 }
 FAIL_AFTER = 3  # wrong-length observations before any answer that end the actor
 WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, or '' (wait for "
@@ -110,6 +132,7 @@ WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, 
 
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 SHUTDOWN_GRACE_S = 0.2  # after the shutdown transition, time for its service reply to go out
+READERS_POLL_S = 0.01  # while the obs subscription waits for the action readers
 
 
 class ActorNode(LifecycleNode):
@@ -187,6 +210,8 @@ class ActorNode(LifecycleNode):
         self.obs_sub: Subscription | None = None
         self.action_pub: Publisher | None = None
         self.target_pub: Publisher | None = None
+        self._readers_timer: Timer | None = None  # exists only while the obs waits for readers
+        self._readers_since = 0.0  # monotonic time the action publisher was created
         self.latency_ms = RollingPercentiles(1000)  # obs received -> action sent
         self._drops_window = WindowCounts()
         self.diagnostics = DiagnosticsPublisher(self, self.diagnostics_report)
@@ -290,18 +315,53 @@ class ActorNode(LifecycleNode):
         self.phase = "unconfigured"
 
     def open_step_topics(self) -> None:
-        """Create the obs subscription and the action publisher (active, and able to answer)."""
+        """Create the action publisher (active, and able to answer), then the obs subscription
+        once the publisher has matched every action reader (module docstring)."""
         self.action_pub = self.create_publisher(
             RobotAction, topics.absolute(self.ns, topics.robot_action(self.robot_id)), STEP)
         if self.target is not None:
             self.target_pub = self.create_publisher(
                 PoseStamped, topics.absolute(self.ns, topics.robot_target_pose(self.robot_id)),
                 POSES)
+        self._readers_since = time.monotonic()
+        if not self.open_obs_when_read():
+            self._readers_timer = self.create_timer(READERS_POLL_S, self.open_obs_when_read)
+
+    def open_obs_when_read(self) -> bool:
+        """Create the obs subscription if the action publisher has matched ``action_readers``
+        readers, or ``action_readers_timeout`` has passed (a warning); whether it is done."""
+        pub = self.action_pub
+        if pub is None:  # closed while waiting
+            self._stop_readers_timer()
+            return True
+        want, timeout = self.params["action_readers"], self.params["action_readers_timeout"]
+        matched, waited = pub.get_subscription_count(), time.monotonic() - self._readers_since
+        if matched < want and waited < timeout:
+            return False
+        self._stop_readers_timer()
+        if matched >= want:
+            self.get_logger().info(f"action writer matched {matched} of {want} action readers "
+                                   f"after {waited:.2f}s; subscribing to observations")
+        else:
+            known = sorted(f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                           for i in self.get_subscriptions_info_by_topic(pub.topic_name))
+            self.get_logger().warning(
+                f"action writer matched {matched} of {want} action readers in {waited:.1f}s "
+                f"(action_readers_timeout); subscribers of {pub.topic_name} this process knows "
+                f"of: {', '.join(known) or 'none'}; subscribing to observations anyway: a reader "
+                "not matched yet misses this robot's actions until it is")
         self.obs_sub = self.create_subscription(
             RobotObservation, topics.absolute(self.ns, topics.robot_obs(self.robot_id)),
             self.on_obs, STEP_NEWEST if self.params["realtime"] else STEP, raw=True)
+        return True
+
+    def _stop_readers_timer(self) -> None:
+        if self._readers_timer is not None:
+            self.destroy_timer(self._readers_timer)
+            self._readers_timer = None
 
     def close_step_topics(self) -> None:
+        self._stop_readers_timer()
         if self.obs_sub is not None:
             self.destroy_subscription(self.obs_sub)
         for pub in (self.action_pub, self.target_pub):
@@ -324,7 +384,7 @@ class ActorNode(LifecycleNode):
         if not new:
             return
         self.get_logger().info(f"weights version {msg.version} accepted (used from the next step)")
-        if self.obs_sub is None and self.phase == "active":
+        if self.action_pub is None and self.phase == "active":
             self.open_step_topics()
 
     def on_obs(self, data: bytes) -> None:
@@ -393,7 +453,9 @@ class ActorNode(LifecycleNode):
             values["dead_reckoned"] = self.core.reckoned if self.core is not None else 0
         values |= drop_values(self.drops, self._drops_window.new(self.drops))
         waiting = self.phase == "active" and self.obs_sub is None
-        note = ("active, waiting for weights" if waiting else "" if self.phase == "active"
+        note = ("" if self.phase == "active" and not waiting
+                else "active, waiting for weights" if self.action_pub is None and waiting
+                else "active, waiting for its action readers" if waiting
                 else f"{self.phase}: not acting" + (f" ({self.configure_error})"
                                                     if self.configure_error else ""))
         return make_report(self.get_fully_qualified_name(), self.ns, values,

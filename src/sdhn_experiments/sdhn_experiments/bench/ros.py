@@ -223,9 +223,12 @@ def deploy_rate(n: int, steps: int, weights: Path, record: str, tmp: Path) -> Wi
     if record == "node":
         procs.append(spawn([*ROS2, "sdhn_sim", "recorder", "--ros-args", "-r", "__ns:=/sdhn",
                             "-p", f"output:={tmp / f'rec-{n}.mcap'}"]))
+    # action readers: the simulator, and the recorder node (each actor holds its obs subscription
+    # until its action writer has matched them, as under the launcher)
     actors = [spawn([*ROS2, "sdhn_policy", "actor", "--ros-args", "-r", f"__ns:=/sdhn/robot_{i}",
                      "-p", f"robot_id:={i}", "-p", f"num_robots:={n}", "-p",
-                     f"weights_file:={weights}", "-p", "greedy:=true"]) for i in range(n)]
+                     f"weights_file:={weights}", "-p", "greedy:=true", "-p",
+                     f"action_readers:={1 + int(record == 'node')}"]) for i in range(n)]
     events = tmp / f"sim-events-{n}-{record}.jsonl"
     events.unlink(missing_ok=True)
     # The sim's output goes to a file: nobody reads a pipe while it runs, and a full pipe blocks.

@@ -17,17 +17,14 @@ Which topics, with which QoS:
   ``policy/weights`` (LATCHED_RECORDER: the latest version is received even if it was published
   before the recorder started, and versions published back to back are all kept), ``hypergraph``
   (SENSOR). As soon as any ``robot_<i>/...`` topic is seen (a publisher *or* a subscriber, e.g.
-  the trainer's), ``robot_<i>/action`` is subscribed (STEP), before that robot's first message.
-  ``robot_<i>/obs`` (STEP) follows once that action subscription has a matched publisher and
-  has existed for ``HOLD_SETTLE_S`` (polled every ``HOLD_POLL_S``). The simulator starts step 0
-  only when every obs topic has all its subscribers (``extra_subscribers`` counts the recorder),
-  so holding the recorder's obs subscription back makes it wait until the actor's action writer
-  reaches the recorder too; else at several hundred steps a second a match a few milliseconds
-  late lost a robot's first actions from the file. The settle time is for an actor whose writer
-  existed first: the matched count is the reader's side, and such a writer matches the reader
-  only once the reader's announcement reaches the actor's process. A robot whose actions nobody
-  else subscribes to (no simulator waiting for them, e.g. a ``ros2 bag play`` of observations
-  alone) is not held past ``DISCOVERY_PERIOD_S``.
+  the trainer's), both ``robot_<i>/action`` and ``robot_<i>/obs`` are subscribed (STEP), before
+  that robot's first message. The simulator starts step 0 only when every obs topic has all its
+  subscribers (``extra_subscribers`` counts the recorder), and each actor subscribes to its
+  observations only once its action writer has matched every reader of its actions
+  (``action_readers``, which counts the recorder where the launcher starts it): so the recorder
+  has every robot's actions from step 0. Actors not told of the recorder (started by hand with
+  the default ``action_readers``) can lose their first actions from the file: matching is per
+  side, and this node cannot see whether a writer has matched it.
 - Any other topic under ``team_ns`` is found by discovery every ``DISCOVERY_PERIOD_S`` and
   subscribed with the named profile that matches its publishers (transient-local ->
   LATCHED_RECORDER, best-effort -> SENSOR, else STEP); a topic with no publisher yet waits for the
@@ -80,7 +77,6 @@ from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from rclpy.timer import Timer
 
 from sdhn_base.diagnostics import ERROR, OK, Report, WindowCounts, drop_values, make_report
 from sdhn_base.drops import DropKind
@@ -96,11 +92,6 @@ from sdhn_sim.recording.schema import UnknownMessageType, message_class, ros2msg
 from sdhn_sim.viz.channels import KINDS, VizDeriver, VizMcapChannels
 
 DISCOVERY_PERIOD_S = 0.5
-HOLD_POLL_S = 0.01  # while a robot's obs subscription waits for its action publisher
-# How long the recorder's action subscription must have existed before a match releases the
-# robot's obs: the subscription's matched count is the reader's side; an actor writer that
-# existed first matches the reader only when the reader's announcement reaches its process.
-HOLD_SETTLE_S = 0.5
 VIZ_QUEUE = 2000  # team messages waiting for the viz worker before viz is skipped
 STATUS_PERIOD_S = 5.0
 CONTRACT_TOPICS = {  # relative to team_ns: (type, the recorder's profile, the publisher's)
@@ -223,15 +214,11 @@ class RecorderNode(Node):
         self._discovered: dict[str, tuple[list[QoSProfile], str]] = {}  # topic -> as seen
         self._subs: dict[str, Any] = {}
         self._robots: set[int] = set()
-        # robot -> (its obs topic, its action topic, monotonic time the action subscription was
-        # created): obs not subscribed until it has matched a publisher (module docstring)
-        self._held: dict[int, tuple[str, str, float]] = {}
         self._t0 = time.monotonic()
         self._bytes = 0
         self._last_status = ""
         for rel, (type_name, profile, offered) in CONTRACT_TOPICS.items():
             self.record(topics.absolute(self.ns, rel), type_name, profile, offered)
-        self._hold_timer: Timer | None = None  # exists only while a robot is held
         self.discover()
         self.create_timer(DISCOVERY_PERIOD_S, self.discover)
         self.create_timer(STATUS_PERIOD_S, self.log_status)
@@ -267,56 +254,19 @@ class RecorderNode(Node):
                 continue
             robot = topics.robot_of(rel)
             if robot and robot[0] not in self._robots:
-                self.first_sight(robot[0])  # subscribes its action topic, holds its obs topic
-            if topic in self._subs or (robot and robot[1] == topics.OBS):
-                continue  # subscribed just now, or robot_<i>/obs: release_held subscribes it
+                i = robot[0]
+                self._robots.add(i)
+                for kind in (topics.ACTION, topics.OBS):
+                    self.record(topics.absolute(self.ns, f"{topics.robot(i)}/{kind}"),
+                                ROBOT_TOPICS[kind], STEP, STEP)
+                if topic in self._subs:
+                    continue
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers or len(types) != 1:
                 continue  # nobody publishes yet (or ambiguous types): next round
             offers = [p.qos_profile for p in publishers]
             self._discovered[topic] = (offers, type_hash_text(publishers[0].topic_type_hash))
             self.record(topic, types[0], profile_for(offers))
-        self.release_held()
-
-    def first_sight(self, i: int) -> None:
-        """Subscribe robot ``i``'s action topic now and hold its obs topic back."""
-        self._robots.add(i)
-        obs, action = (topics.absolute(self.ns, topics.robot_obs(i)),
-                       topics.absolute(self.ns, topics.robot_action(i)))
-        self.record(action, ROBOT_TOPICS[topics.ACTION], STEP, STEP)
-        self._held[i] = (obs, action, time.monotonic())
-        self.release_held()
-
-    def release_held(self) -> None:
-        """Subscribe every held obs topic whose robot's action subscription has matched a
-        publisher and existed for HOLD_SETTLE_S; or that nobody else waits for actions on
-        (after a discovery period, so that a simulator whose action subscription is discovered
-        after its obs publisher is not taken for an actor-less graph); or that has no action
-        subscription to wait on."""
-        now = time.monotonic()
-        for i, (obs, action, since) in list(self._held.items()):
-            sub = self._subs.get(action)
-            if sub is None:
-                why = "no action subscription"
-            elif sub.get_publisher_count() >= 1 and now - since >= HOLD_SETTLE_S:
-                why = "its action publisher matched"
-            elif now - since >= DISCOVERY_PERIOD_S and self.count_subscribers(action) <= 1:
-                why = "no one else subscribes to its actions"
-            else:
-                continue
-            del self._held[i]
-            self.record(obs, ROBOT_TOPICS[topics.OBS], STEP, STEP)
-            # Which rule released it, and when: what to look at if a robot's first actions are
-            # missing from a recording.
-            self.get_logger().info(f"{topics.robot(i)}: obs subscribed after "
-                                   f"{now - since:.2f}s ({why})")
-        # Created and destroyed rather than cancelled and reset: robots appear at start-up only,
-        # and the recorder then runs no timer at the loop's rate.
-        if self._held and self._hold_timer is None:
-            self._hold_timer = self.create_timer(HOLD_POLL_S, self.release_held)
-        elif not self._held and self._hold_timer is not None:
-            self.destroy_timer(self._hold_timer)
-            self._hold_timer = None
 
     def describe(self, topic: str) -> tuple[list[QoSProfile], str]:
         """(offered QoS of every publisher, type hash) for ``topic``'s channel: from the graph

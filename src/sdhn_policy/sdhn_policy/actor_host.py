@@ -8,7 +8,9 @@ each): one :class:`sdhn_policy.actor_node.ActorNode` per robot (node ``actor`` i
 ``<team_ns>/robot_<i>``, the names a process per robot has), all on one events executor, in the
 ROS 2 composition style. Each node reads its own parameters from the parameters file by its full
 name, runs the same :class:`sdhn_policy.actor_core.ActorCore` and so answers an observation
-exactly as the process of that robot would. The robots share the process's one DDS participant
+exactly as the process of that robot would; each also holds its obs subscription until its own
+action writer has matched ``action_readers`` (one ``-p action_readers:=K`` sets it for every node
+of the process). The robots share the process's one DDS participant
 and its one thread: a robot's decision waits for the others' of the same step, which costs
 latency, not actions. One process per robot stays the default and what the decentralised tests
 run; the launcher starts hosts with ``actor_hosts: K``.

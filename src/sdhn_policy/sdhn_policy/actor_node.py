@@ -132,7 +132,9 @@ WEIGHTS_ALLOWED = ("allowed: an actor .safetensors file with its .json sidecar, 
 
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 SHUTDOWN_GRACE_S = 0.2  # after the shutdown transition, time for its service reply to go out
-READERS_POLL_S = 0.01  # while the obs subscription waits for the action readers
+# While the obs subscription waits for the action readers: at most this much later than the
+# match, against discovery's seconds; not faster, as an actor host polls for each of its robots.
+READERS_POLL_S = 0.05
 
 
 class ActorNode(LifecycleNode):

@@ -123,9 +123,11 @@ def test_a_reader_discovered_late_gets_every_action_from_step_0(
         obs.spin(LATE_S)
         obs.subscribe_actions()
         assert obs.spin(60, lambda: len(obs.episodes) == 1), procs[0].output
+        length = int(obs.episodes[0].length)
+        # an action can reach this reader after the summary the simulator sent once it had it
+        obs.spin(10, lambda: all(len(obs.actions.get(i, ())) >= length for i in range(N)))
         assert procs[0].proc.wait(timeout=20) == 0, procs[0].output
         stop_all(procs[1:])
-    length = int(obs.episodes[0].length)
     assert obs.episodes[0].missed_actions == 0, procs[0].output
     for i in range(N):
         missing = sorted({(0, t) for t in range(length)} - obs.actions.get(i, set()))

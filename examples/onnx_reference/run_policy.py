@@ -22,6 +22,7 @@ import argparse
 import json
 import math
 import sys
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -67,13 +68,13 @@ class StallRule:
 
 
 class FinalApproach:
-    """``deploy.json["final_approach"]`` for one robot: capture and hold, as listed."""
+    """``deploy.json["final_approach"]`` for one robot: capture, hold and path, as listed."""
 
     def __init__(self, spec: dict[str, Any]) -> None:
         c = spec["constants"]
         self.size, self.window = int(c["grid_size"]), int(c["window_size"])
         self.pos, self.goal = c["position_indices"], c["goal_indices"]
-        self.centre = int(c["centre_index"])
+        self.centre, self.radius = int(c["centre_index"]), int(c["radius"])
         self.free, self.stay = float(c["free_cell"]), int(c["stay"])
         self.move = {tuple(d): int(a) for a, d in c["action_deltas (dx, dy)"].items()}
 
@@ -84,7 +85,36 @@ class FinalApproach:
             return self.move[(dx, dy)]
         if dx == 0 and dy == 0 and not sampled:
             return self.stay
+        if abs(dx) + abs(dy) >= 2 and max(abs(dx), abs(dy)) <= self.radius and not sampled:
+            step = self.path_step(obs, dx, dy)
+            if step is not None:
+                return step
         return action
+
+    def path_step(self, obs: np.ndarray, gx: int, gy: int) -> int | None:
+        """Breadth-first distances from the goal over the free window cells; the first of up,
+        down, left, right that is one step closer (None: the goal is taken or walled off)."""
+        def free(x: int, y: int) -> bool:
+            return (max(abs(x), abs(y)) <= self.radius
+                    and obs[self.centre + x + y * self.window] == self.free)
+
+        if not free(gx, gy):
+            return None
+        dist = {(gx, gy): 0}
+        queue = deque([(gx, gy)])
+        while queue:
+            x, y = queue.popleft()
+            for ddx, ddy in self.move:
+                cell = (x + ddx, y + ddy)
+                if (ddx, ddy) != (0, 0) and cell not in dist and free(*cell):
+                    dist[cell] = dist[(x, y)] + 1
+                    queue.append(cell)
+        if (0, 0) not in dist:
+            return None
+        for ddx, ddy in ((0, -1), (0, 1), (-1, 0), (1, 0)):  # up, down, left, right
+            if dist.get((ddx, ddy)) == dist[(0, 0)] - 1:
+                return self.move[(ddx, ddy)]
+        return None
 
 
 def log_softmax32(logits: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sdhn_policy.final_approach import FinalApproach
-from sdhn_sim.envs.maif import ACTION_DELTAS, OBS_SIZE, MaifEnv
+from sdhn_sim.envs.maif import ACTION_DELTAS, OBS_SIZE, RADIUS, MaifEnv
 from sdhn_sim.envs.maif_scripted import GreedyPolicy
 
 
@@ -45,13 +45,47 @@ def free_in_world(cell: np.ndarray, positions: np.ndarray, obstacles: np.ndarray
     return not bool(np.any(np.all(positions == cell, axis=1)))
 
 
+def world_path_step(pos: np.ndarray, goal: np.ndarray, positions: np.ndarray,
+                    obstacles: np.ndarray) -> int | None:
+    """The path rule worked out on the world itself: breadth-first from the goal over the free
+    cells within RADIUS of the robot (Chebyshev), the robot's own cell included; the first of up,
+    down, left, right one step closer, or None where the goal is taken or cut off."""
+    def usable(cell: tuple[int, int]) -> bool:
+        c = np.array(cell)
+        return bool(np.abs(c - pos).max() <= RADIUS) and (
+            bool(np.array_equal(c, pos)) or free_in_world(c, positions, obstacles))
+
+    start = (int(goal[0]), int(goal[1]))
+    if not usable(start):
+        return None
+    dist = {start: 0}
+    frontier = [start]
+    while frontier:
+        nxt = []
+        for x, y in frontier:
+            for dx, dy in ACTION_DELTAS[1:]:
+                cell = (x + int(dx), y + int(dy))
+                if cell not in dist and usable(cell):
+                    dist[cell] = dist[(x, y)] + 1
+                    nxt.append(cell)
+        frontier = nxt
+    here = (int(pos[0]), int(pos[1]))
+    if here not in dist:
+        return None
+    for a in (1, 2, 3, 4):
+        cell = (here[0] + int(ACTION_DELTAS[a][0]), here[1] + int(ACTION_DELTAS[a][1]))
+        if dist.get(cell) == dist[here] - 1:
+            return a
+    raise AssertionError("a reached cell always has a neighbour one step closer")
+
+
 @settings(max_examples=12, deadline=None, derandomize=True)
 @given(task=st.sampled_from(["maif-tiny", "maif-10"]), seed=st.integers(0, 10_000),
        draw_seed=st.integers(0, 10_000))
 def test_capture_and_hold_against_the_true_world(task: str, seed: int, draw_seed: int) -> None:
     rule = FinalApproach.for_env(task)
     rng = np.random.default_rng(draw_seed)
-    captured = held = 0
+    captured = held = walked = 0
     steps = 60 if task == "maif-tiny" else 120  # maif-10's robots walk further
     for obs, pos, goal, obstacles in world_states(task, seed, steps):
         rows = len(obs)
@@ -69,12 +103,18 @@ def test_capture_and_hold_against_the_true_world(task: str, seed: int, draw_seed
             elif dist[i] == 0 and not sampling[i]:  # hold
                 assert got[i] == 0
                 held += 1
-            else:  # one cell off with the goal taken, on it while sampling, or farther
+            elif (dist[i] >= 2 and np.abs(goal[i] - pos[i]).max() <= RADIUS
+                  and not sampling[i]):  # path: as the true world's window cells allow
+                want = world_path_step(pos[i], goal[i], pos[team], obstacles[i // n])
+                assert got[i] == (act[i] if want is None else want), (i, got[i], want)
+                walked += want is not None
+            else:  # one cell off with the goal taken, on it while sampling, or out of view
                 assert got[i] == act[i], (i, dist[i], goal_free, sampling[i])
             if got[i] != act[i] and got[i] != 0:  # any move the rule makes: into a free cell
                 assert free_in_world(pos[i] + ACTION_DELTAS[got[i]], pos[team],
                                      obstacles[i // n])
     assert captured + held > 0, "the states never exercised the rule"
+    assert walked > 0, "no robot took a path step: the path rule went unchecked"
 
 
 def test_rows_are_independent() -> None:
@@ -105,7 +145,13 @@ def test_the_goal_offset_reads_cells_on_every_grid() -> None:
         two_off = o.copy()
         two_off[:, 4:6] = np.array([(x, y - 2), (x + 1, y + 1), (x - 2, y), (x + 2, y)],
                                    dtype=np.float32) / (size - 1)
-        assert rule.apply(two_off, np.full(4, 3), np.zeros(4, bool)).tolist() == [3] * 4
+        # two cells off in an empty window: the path's first step (down before right on a tie)
+        assert rule.apply(two_off, np.full(4, 3), np.zeros(4, bool)).tolist() == [1, 2, 3, 4]
+        assert rule.apply(two_off, np.full(4, 3), np.ones(4, bool)).tolist() == [3] * 4
+        out_of_view = o.copy()
+        out_of_view[:, 4:6] = np.array([(x, y - 4), (x + 4, y + 1), (x - 4, y), (x + 4, y)],
+                                       dtype=np.float32) / (size - 1)
+        assert rule.apply(out_of_view, np.full(4, 3), np.zeros(4, bool)).tolist() == [3] * 4
 
 
 def test_for_env_and_bad_input() -> None:
@@ -154,13 +200,13 @@ def test_actor_core_and_the_batched_evaluation_take_the_same_actions() -> None:
     rt = ActorRuntime.from_file(actor)
     rule, task = StallRule.parse("2,10,2"), "maif-30"
     approach = FinalApproach.for_env(task)
-    env = MaifEnv(task, num_envs=1, seed=2, max_steps=150)
+    env = MaifEnv(task, num_envs=1, seed=4, max_steps=150)
     n = env.num_robots
     cores = [ActorCore(i, n, True, 0, rt, stall_rule=rule, approach=approach) for i in range(n)]
     breaker, h = StallBreaker(rule, n), rt.initial_state(n)
     policy = PerRobotDraws(rt, breaker, n, seed=0)
     rng = np.random.default_rng(0)
-    obs, _ = env.reset(seed=2)
+    obs, _ = env.reset(seed=4)
     overridden = sampled = 0
     for step in range(150):
         flat = obs.reshape(n, -1)

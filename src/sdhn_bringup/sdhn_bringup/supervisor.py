@@ -29,9 +29,9 @@ Config file fields (every one optional; see :class:`sdhn_bringup.launch_config.L
                           a few actions; sdhn_policy.stall_breaker)
     stall_rule: ""        (with break_stalls: CALM,PROGRESS,SAMPLE[,T], the rule the actors
                           run; "" = their default. scripts/tune_stall_rule.py chooses one)
-    final_approach: false (with break_stalls, MAIF: a robot one cell from its free goal steps
-                          onto it, one on its goal stays unless stall breaking samples;
-                          sdhn_policy.final_approach)
+    final_approach: false (with break_stalls, MAIF: a robot whose free goal is in its window
+                          steps along a shortest free path to it, one on its goal stays unless
+                          stall breaking samples; sdhn_policy.final_approach)
     dead_reckoning: null  (deploy, MAIF or RWARE: a robot moves an observation that lags behind
                           its own actions forward by them, sdhn_policy.dead_reckoning; null = as the
                           card beside the weights says, its heldout_large.deploy, false without

@@ -129,8 +129,9 @@ def main(argv: list[str] | None = None) -> int:
                         "(sdhn_policy.stall_breaker); optional: the rule's steps and "
                         f"temperature (default {StallRule().text()},1)")
     p.add_argument("--final-approach", action="store_true",
-                   help="with --break-stalls: a robot one cell from its free goal steps onto it, "
-                        "one on its goal stays unless stall breaking samples "
+                   help="with --break-stalls: a robot whose free goal is in its window steps along "
+                        "a shortest free path to it (one cell off: onto it), one on its goal "
+                        "stays unless stall breaking samples "
                         "(sdhn_policy.final_approach; the actor nodes' final_approach)")
     p.add_argument("--max-steps", type=int, default=None, metavar="T",
                    help="episode step limit (default: the environment's, 500 for MAIF)")

@@ -8,7 +8,9 @@ the version that produced it. The GRU state goes back to zeros when a new episod
 
 Final approach (``approach``: ``sdhn_policy.final_approach.FinalApproach.for_env(env)``, MAIF,
 with stall breaking): after the action is chosen, a robot one cell from its free goal steps onto
-it and one on its goal stays unless stall breaking samples this step.
+it, one whose free goal is farther but inside its window (and not sampling) takes the first step of
+a shortest free path in the window, and one on its goal stays unless stall breaking samples this
+step.
 
 Dead reckoning (``reckoner``: ``sdhn_policy.dead_reckoning.reckoner_for(env)``, MAIF or RWARE,
 for one row): the core keeps the step each recorded action

@@ -99,8 +99,9 @@ PARAMETERS = {
     "stall_rule": (StallRule().text(), string("break_stalls: CALM,PROGRESS,SAMPLE[,T], the "
                                               "rule's step counts and sampling temperature")),
     "final_approach": (False, boolean("break_stalls true, needs env naming a MAIF grid: a robot "
-                                      "one cell from its free goal steps onto it, one on its "
-                                      "goal stays unless stall breaking samples "
+                                      "whose free goal is in its window steps along a shortest "
+                                      "free path to it, one on its goal stays unless stall "
+                                      "breaking samples "
                                       "(sdhn_policy.final_approach)")),
     "seed": (0, integer("seed of the action sampler", 0)),
     "backend": ("numpy", string("policy runtime: 'numpy' or 'onnx' (onnxruntime); same actions")),

@@ -16,7 +16,7 @@ reproduces the project's deployed behaviour from the two JSON files and ``actor.
 - ``stall_breaking``: :mod:`sdhn_policy.stall_breaker` as state, constants and an ordered list of
   update steps;
 - ``final_approach`` (where the card's mode includes it, ``heldout_large.deploy.final_approach``,
-  always with stall breaking): :mod:`sdhn_policy.final_approach`, the capture and hold rule,
+  always with stall breaking): :mod:`sdhn_policy.final_approach`, the capture, path and hold rule,
   as constants and an ordered list of steps;
 - ``dead_reckoning`` (where the card's mode includes it, ``heldout_large.deploy.dead_reckoning``):
   :mod:`sdhn_policy.dead_reckoning`, the rule that moves an observation lagging behind the robot's
@@ -123,7 +123,7 @@ def final_approach(env: str) -> dict[str, Any]:
     rule = FinalApproach.for_env(env)
     return {
         "constants": {"grid_size": rule.size, "position_indices": [0, 1], "goal_indices": [4, 5],
-                      "centre_index": CENTRE_INDEX, "window_size": WINDOW,
+                      "centre_index": CENTRE_INDEX, "window_size": WINDOW, "radius": RADIUS,
                       "free_cell": FREE_CELL, "stay": STAY,
                       "action_deltas (dx, dy)": {str(a): [int(v) for v in d]
                                                  for a, d in enumerate(ACTION_DELTAS)}},
@@ -137,6 +137,11 @@ def final_approach(env: str) -> dict[str, Any]:
             "breaking samples)",
             "hold: else if dx == 0 and dy == 0 and stall breaking does not sample this step: "
             "action = stay",
+            "path: else if |dx| + |dy| >= 2 and max(|dx|, |dy|) <= radius and stall breaking "
+            "does not sample this step: D = the breadth-first distance from the goal cell "
+            "(window cell (dx, dy), only if free) over the window's free cells, 4-connected, "
+            "the robot's own cell counting as free; if the robot's cell has a distance D, "
+            "action = the first of up, down, left, right whose neighbour cell has distance D - 1",
             "else: the action chosen (argmax, or drawn where stall breaking samples)",
         ],
         "order": "after stall breaking's update and the action choice, on every observation",

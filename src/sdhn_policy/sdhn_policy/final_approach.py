@@ -87,7 +87,7 @@ def window_path_steps(windows: npt.NDArray[np.float32],
 
 
 class FinalApproach:
-    """The capture and hold rule for a MAIF grid of ``size`` x ``size`` cells (see the module
+    """The capture, hold and path rule for a MAIF grid of ``size`` x ``size`` cells (see the module
     docstring); stateless, so one instance serves any number of rows."""
 
     def __init__(self, size: int) -> None:

@@ -100,18 +100,19 @@ class FinalApproach:
 
         if not free(gx, gy):
             return None
+        steps = ((0, -1), (0, 1), (-1, 0), (1, 0))  # up, down, left, right: the tie order
         dist = {(gx, gy): 0}
         queue = deque([(gx, gy)])
         while queue:
             x, y = queue.popleft()
-            for ddx, ddy in self.move:
+            for ddx, ddy in steps:
                 cell = (x + ddx, y + ddy)
-                if (ddx, ddy) != (0, 0) and cell not in dist and free(*cell):
+                if cell not in dist and free(*cell):
                     dist[cell] = dist[(x, y)] + 1
                     queue.append(cell)
         if (0, 0) not in dist:
             return None
-        for ddx, ddy in ((0, -1), (0, 1), (-1, 0), (1, 0)):  # up, down, left, right
+        for ddx, ddy in steps:
             if dist.get((ddx, ddy)) == dist[(0, 0)] - 1:
                 return self.move[(ddx, ddy)]
         return None

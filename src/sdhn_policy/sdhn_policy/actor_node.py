@@ -455,12 +455,16 @@ class ActorNode(LifecycleNode):
         if self.reckoner is not None:  # observations moved forward by this robot's unseen actions
             values["dead_reckoned"] = self.core.reckoned if self.core is not None else 0
         values |= drop_values(self.drops, self._drops_window.new(self.drops))
-        waiting = self.phase == "active" and self.obs_sub is None
-        note = ("" if self.phase == "active" and not waiting
-                else "active, waiting for weights" if self.action_pub is None and waiting
-                else "active, waiting for its action readers" if waiting
-                else f"{self.phase}: not acting" + (f" ({self.configure_error})"
-                                                    if self.configure_error else ""))
+        waiting = self.phase == "active" and self.obs_sub is None  # a WARN while active
+        if self.phase != "active":
+            note = f"{self.phase}: not acting" + (f" ({self.configure_error})"
+                                                  if self.configure_error else "")
+        elif self.action_pub is None:  # the step topics open once weights are held
+            note = "active, waiting for weights"
+        elif self.obs_sub is None:  # the obs subscription waits for the action readers
+            note = "active, waiting for its action readers"
+        else:
+            note = ""
         return make_report(self.get_fully_qualified_name(), self.ns, values,
                            ("decision_latency_p99_ms", "dropped_in_window"), note,
                            floor=WARN if waiting else OK)

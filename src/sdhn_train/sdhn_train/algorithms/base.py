@@ -7,9 +7,10 @@ from typing import Protocol, TypeVar
 
 import numpy as np
 
-from sdhn_train.envinfo import EnvInfo
+from sdhn_policy.actor_torch import Actor
+from sdhn_train.envinfo import EnvInfo, actor_spec
 from sdhn_train.learners.base import Learner
-from sdhn_train.learners.ppo import PPOConfig
+from sdhn_train.learners.ppo import Critic, PPOConfig, PPOLearner, resolve_ppo
 from sdhn_train.sections import ActorConfig, EnvConfig, Section
 
 SectionT = TypeVar("SectionT")
@@ -49,3 +50,12 @@ class Algorithm(Protocol):
     def build_learner(self, cfg: Settings, info: EnvInfo, rng: np.random.Generator) -> Learner:
         """The networks and their learner (call after seeding torch)."""
         ...
+
+
+def ppo_learner(cfg: Settings, info: EnvInfo, rng: np.random.Generator, critic: Critic, *,
+                default_lr: float, default_target_tau: float) -> PPOLearner:
+    """The shared actor + ``critic`` on the one PPO learner, the ``ppo`` section's null lr and
+    target_tau filled with the algorithm's defaults (SDHN, MAPPO, DICG: only the critic
+    differs)."""
+    return PPOLearner(Actor(actor_spec(cfg.actor, info)), critic,
+                      resolve_ppo(cfg.ppo, default_lr, default_target_tau), rng)

@@ -22,11 +22,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from sdhn_policy.actor_torch import Actor
-from sdhn_train.algorithms.base import Settings
-from sdhn_train.envinfo import EnvInfo, actor_spec
+from sdhn_train.algorithms.base import Settings, ppo_learner
+from sdhn_train.envinfo import EnvInfo
 from sdhn_train.learners.base import Learner
-from sdhn_train.learners.ppo import Critic, CriticOutput, PPOLearner, resolve_ppo
+from sdhn_train.learners.ppo import Critic, CriticOutput
 from sdhn_train.nets import mlp
 from sdhn_train.sections import need_positive, opt
 
@@ -94,5 +93,5 @@ class DICG:
         d = cfg.section(DICGConfig)
         critic = DICGCritic(info.obs_size, info.state_size, info.num_robots, embed=d.embed,
                             gcn_layers=d.gcn_layers, state_hidden=d.state_hidden)
-        return PPOLearner(Actor(actor_spec(cfg.actor, info)), critic,
-                          resolve_ppo(cfg.ppo, self.default_lr, self.default_target_tau), rng)
+        return ppo_learner(cfg, info, rng, critic, default_lr=self.default_lr,
+                           default_target_tau=self.default_target_tau)

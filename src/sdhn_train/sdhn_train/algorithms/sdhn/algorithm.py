@@ -7,13 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sdhn_policy.actor_torch import Actor
-from sdhn_train.algorithms.base import Settings
+from sdhn_train.algorithms.base import Settings, ppo_learner
 from sdhn_train.algorithms.sdhn.critic import SDHNCritic
 from sdhn_train.algorithms.sdhn.hypergraph import NOISES, Noise
-from sdhn_train.envinfo import EnvInfo, actor_spec
+from sdhn_train.envinfo import EnvInfo
 from sdhn_train.learners.base import Learner
-from sdhn_train.learners.ppo import PPOLearner, resolve_ppo
 from sdhn_train.sections import need, need_positive, opt
 
 
@@ -60,5 +58,5 @@ class SDHN:
             hgcn_hidden=s.hgcn_hidden, hgcn_layers=s.hgcn_layers, state_hidden=s.state_hidden,
             tau=s.tau, noise=noise, stochastic_hyperedges=s.stochastic_hyperedges,
             skew_loss=s.skew_loss, lambda_sk=s.lambda_sk, lambda_cb=s.lambda_cb)
-        return PPOLearner(Actor(actor_spec(cfg.actor, info)), critic,
-                          resolve_ppo(cfg.ppo, self.default_lr, self.default_target_tau), rng)
+        return ppo_learner(cfg, info, rng, critic, default_lr=self.default_lr,
+                           default_target_tau=self.default_target_tau)

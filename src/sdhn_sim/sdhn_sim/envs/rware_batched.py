@@ -47,7 +47,15 @@ import numpy as np
 import numpy.typing as npt
 
 from .api import EpisodeStats, FloatArray, StepResult
-from .rware_env import NUM_ACTIONS, RWARE_DIFFICULTIES, check_batch_args, rware_env_id
+from .rware_env import (
+    NUM_ACTIONS,
+    RWARE_DIFFICULTIES,
+    action_range_error,
+    check_batch_args,
+    checked_actions,
+    first_reset_seeds,
+    rware_env_id,
+)
 
 # rware's registered sizes: (shelf rows, shelf columns); column height 8 for all of them
 RWARE_LAYOUTS = {"tiny": (1, 3), "small": (2, 3), "medium": (2, 5), "large": (3, 5)}
@@ -126,8 +134,7 @@ class RwareBatchedEnv:
         self.queue_size = int(n * DIFFICULTY_FACTOR[difficulty])
         self.obs_size = 8 + (2 * r + 1) ** 2 * 7
         self.state_size = n * self.obs_size
-        self._seed = int(seed)
-        self._pending_seed: list[int | None] = [self._seed + b for b in range(nb)]
+        self._pending_seed = first_reset_seeds(seed, nb)
         self._rngs: list[np.random.Generator | None] = [None] * nb
         self._build_tables()
         s = lay.num_shelves
@@ -232,10 +239,7 @@ class RwareBatchedEnv:
 
     def reset(self, seed: int | None = None) -> tuple[FloatArray, FloatArray]:
         if seed is not None:
-            if int(seed) < 0:
-                raise ValueError(f"seed must be >= 0, got {seed}")
-            self._seed = int(seed)
-            self._pending_seed = [self._seed + b for b in range(self.num_envs)]
+            self._pending_seed = first_reset_seeds(seed, self.num_envs)
         for b in range(self.num_envs):
             self._reset_one(b)
         self._started = True
@@ -256,13 +260,9 @@ class RwareBatchedEnv:
         if not self._started:
             raise RuntimeError("call reset() before step()")
         nb, n = self.num_envs, self.num_robots
-        a = np.asarray(actions)
-        if a.shape != (nb, n):
-            raise ValueError(f"actions must have shape {(nb, n)}, got {a.shape}")
-        if a.dtype.kind not in "iu":
-            raise ValueError(f"actions must be integers in [0, {NUM_ACTIONS}), got {a.dtype}")
+        a = checked_actions(actions, nb, n)
         if a.min() < 0 or a.max() >= NUM_ACTIONS:
-            raise ValueError(f"actions must be in [0, {NUM_ACTIONS}), got {a.min()}..{a.max()}")
+            raise action_range_error(a)
         a = a.astype(np.int64)
         cell, loaded = self.cell, self.carry >= 0
         forward = a == FORWARD

@@ -52,6 +52,30 @@ def check_batch_args(num_envs: int, max_steps: int, seed: int) -> None:
         raise ValueError(f"seed must be >= 0, got {seed}")
 
 
+def first_reset_seeds(seed: int, num_envs: int) -> list[int | None]:
+    """The seed of each copy's next reset in a batch seeded ``seed``: copy ``b`` starts from
+    ``seed + b``; after that first reset (None) it continues its own generator."""
+    if int(seed) < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+    return [int(seed) + b for b in range(int(num_envs))]
+
+
+def checked_actions(actions: npt.ArrayLike, num_envs: int, num_robots: int) -> npt.NDArray[Any]:
+    """The [B, N] integer actions both RWARE backends take, refused the same way (ValueError).
+    The range [0, NUM_ACTIONS) each backend checks in its cheapest form and refuses with
+    ``action_range_error``."""
+    a = np.asarray(actions)
+    if a.shape != (num_envs, num_robots):
+        raise ValueError(f"actions must have shape {(num_envs, num_robots)}, got {a.shape}")
+    if a.dtype.kind not in "iu":
+        raise ValueError(f"actions must be integers in [0, {NUM_ACTIONS}), got {a.dtype}")
+    return a
+
+
+def action_range_error(a: npt.NDArray[Any]) -> ValueError:
+    return ValueError(f"actions must be in [0, {NUM_ACTIONS}), got {a.min()}..{a.max()}")
+
+
 def make_rware_gym(env_id: str, max_steps: int) -> Any:
     """The raw gymnasium env as rware registers it (``gym.make``), with our step limit."""
     import gymnasium as gym
@@ -95,8 +119,7 @@ class RwareEnv:
         space = self._envs[0].observation_space
         self.obs_size = int(space[0].shape[0])
         self.state_size = self.num_robots * self.obs_size
-        self._seed = int(seed)
-        self._pending_seed: list[int | None] = [self._seed + b for b in range(self.num_envs)]
+        self._pending_seed = first_reset_seeds(seed, self.num_envs)
         self._t = [0] * self.num_envs
         self._ret = [0.0] * self.num_envs
         self._deliveries = [0] * self.num_envs
@@ -114,10 +137,7 @@ class RwareEnv:
 
     def reset(self, seed: int | None = None) -> tuple[FloatArray, FloatArray]:
         if seed is not None:
-            if int(seed) < 0:
-                raise ValueError(f"seed must be >= 0, got {seed}")
-            self._seed = int(seed)
-            self._pending_seed = [self._seed + b for b in range(self.num_envs)]
+            self._pending_seed = first_reset_seeds(seed, self.num_envs)
         obs = np.empty((self.num_envs, self.num_robots, self.obs_size), dtype=np.float32)
         for b in range(self.num_envs):
             obs[b] = self._reset_one(b)
@@ -130,14 +150,10 @@ class RwareEnv:
         if not self._started:
             raise RuntimeError("call reset() before step()")
         nb, n = self.num_envs, self.num_robots
-        a = np.asarray(actions)
-        if a.shape != (nb, n):
-            raise ValueError(f"actions must have shape {(nb, n)}, got {a.shape}")
-        if a.dtype.kind not in "iu":
-            raise ValueError(f"actions must be integers in [0, {NUM_ACTIONS}), got {a.dtype}")
-        acts: list[list[int]] = a.tolist()
+        a = checked_actions(actions, nb, n)
+        acts: list[list[int]] = a.tolist()  # rware steps on lists: the range check reads them
         if min(map(min, acts)) < 0 or max(map(max, acts)) >= NUM_ACTIONS:
-            raise ValueError(f"actions must be in [0, {NUM_ACTIONS}), got {a.min()}..{a.max()}")
+            raise action_range_error(a)
         obs = np.empty((nb, n, self.obs_size), dtype=np.float32)
         rewards: list[list[float]] = []
         team: list[float] = []

@@ -60,7 +60,7 @@ from sdhn_experiments.condition_eval import (
     set_instances,
     summarise_under,
 )
-from sdhn_experiments.heldout_eval import set_checksum, write_json
+from sdhn_experiments.heldout_eval import print_table, set_checksum, write_json
 from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_sim.envs.conditions import Conditions, ConditionsError, conditions_from_dict
 from sdhn_sim.envs.maif_instances import MAIF_CONFIGS
@@ -160,10 +160,7 @@ def _rware_main(args: argparse.Namespace, models: list[Path],
                              "summary": s})
                 if args.out:
                     write_json(args.out, rows)
-    table = markdown_rows(rows)
-    if args.markdown:
-        args.markdown.write_text(table)
-    print(table)
+    print_table(markdown_rows(rows), args.markdown)
     return 0
 
 
@@ -321,10 +318,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         if args.out:
             write_json(args.out, rows)
-    table = markdown(rows)
-    if args.markdown:
-        args.markdown.write_text(table)
-    print(table)
+    print_table(markdown(rows), args.markdown)
     return 0
 
 

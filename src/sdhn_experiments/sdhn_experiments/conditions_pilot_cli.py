@@ -27,7 +27,13 @@ from sdhn_experiments.condition_eval import (
     records_json,
 )
 from sdhn_experiments.conditions_pilot import PLAN, compare_arms, evaluate_policies, markdown
-from sdhn_experiments.heldout_eval import Policy, set_checksum, set_instances, write_json
+from sdhn_experiments.heldout_eval import (
+    Policy,
+    print_table,
+    set_checksum,
+    set_instances,
+    write_json,
+)
 from sdhn_policy.actor_runtime import ActorRuntime
 
 RECORD_COLUMNS = ("instance", "map", "success", "makespan", "team_success", "failed", "length")
@@ -104,9 +110,6 @@ def main(argv: list[str] | None = None) -> int:
                            for lab, r in per.items()} for name, per in rows.items()},
     }
     write_json(args.out, out)
-    text = markdown(table, list(arms), "baseline")
-    if args.markdown:
-        args.markdown.write_text(text)
-    print(text)
+    print_table(markdown(table, list(arms), "baseline"), args.markdown)
     return 0
 

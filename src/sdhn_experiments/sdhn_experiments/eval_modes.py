@@ -17,7 +17,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from sdhn_experiments.heldout_eval import modes_table, paired_makespan_ratios
+from sdhn_experiments.heldout_eval import modes_table, paired_makespan_ratios, print_table
 
 
 def tables(results: list[dict[str, Any]]) -> str:
@@ -51,9 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError, TypeError) as e:
         print(f"compare_eval_modes: {e}", file=sys.stderr)
         return 2
-    if args.markdown:
-        args.markdown.write_text(text)
-    print(text)
+    print_table(text, args.markdown)
     return 0
 
 

@@ -31,6 +31,7 @@ from sdhn_experiments.heldout_eval import (
     default_planner_cache,
     evaluate_set,
     planner_makespans,
+    print_table,
     records_json,
     set_checksum,
     set_instances,
@@ -238,10 +239,7 @@ def main(argv: list[str] | None = None) -> int:
                             "records": records_json(recs), "planner_makespan": plan})
     if args.out:
         write_json(args.out, results)
-    table = markdown(results)
-    if args.markdown:
-        args.markdown.write_text(table)
-    print(table)
+    print_table(markdown(results), args.markdown)
     return 0
 
 

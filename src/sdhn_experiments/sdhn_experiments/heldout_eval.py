@@ -337,3 +337,11 @@ class TorchPolicy:
 
 def write_json(path: Path, data: Any) -> None:
     atomic_write_bytes(path, (json.dumps(data, indent=1) + "\n").encode())
+
+
+def print_table(text: str, markdown: Path | None) -> None:
+    """An evaluation CLI's last word: its Markdown table on stdout, and in ``markdown`` (the
+    ``--markdown`` file) when one is named."""
+    if markdown:
+        markdown.write_text(text)
+    print(text)

@@ -127,15 +127,6 @@ def watching(ns: str, num_robots: int) -> Iterator[Watcher]:
         w.close()
 
 
-def wait_until(cond: Callable[[], Any], timeout: float, poll: float = 0.05) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(poll)
-    return bool(cond())
-
-
 # --- launcher -----------------------------------------------------------------------------------
 
 

@@ -10,7 +10,9 @@ from pathlib import Path
 import pytest
 from ros.processes import ROS2, NodeProcess
 
-from .graph import Peer, wait_until
+from sdhn_base.polling import wait_until
+
+from .graph import Peer
 
 pytestmark = pytest.mark.ros
 

@@ -20,12 +20,13 @@ from rclpy.duration import Duration
 from ros.deploy_helpers import actor_cmd, sim_cmd
 from ros.processes import node_processes
 
+from sdhn_base.polling import wait_until
 from sdhn_base.ros import topics
 from sdhn_base.ros.qos import LATCHED, STEP
 from sdhn_msgs.msg import PolicyWeights, RobotAction, RobotObservation, TeamState
 from sdhn_policy.weights import ActorSpec, decode_weights, encode_actor, save_actor_file
 
-from .graph import Peer, wait_until
+from .graph import Peer
 from .hostile import action_msg, hostile_weights, obs_msg, weights_msg
 
 pytestmark = pytest.mark.ros

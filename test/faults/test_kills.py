@@ -22,6 +22,7 @@ from rclpy.serialization import serialize_message
 from ros.processes import ROS2, NodeProcess, node_processes
 from ros.team_stream import team_stream
 
+from sdhn_base.polling import wait_until
 from sdhn_base.ros import topics
 from sdhn_base.ros.qos import STEP
 from sdhn_sim.recording.reader import decode, read_recording
@@ -38,7 +39,6 @@ from .graph import (
     launch_cmd,
     log_lines,
     pids,
-    wait_until,
 )
 
 pytestmark = pytest.mark.ros

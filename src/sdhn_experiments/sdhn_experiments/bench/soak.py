@@ -30,23 +30,14 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from sdhn_base.polling import wait_until
 from sdhn_experiments.bench import CHECKOUT
 
 REPO = CHECKOUT
 LAUNCH = [str(REPO / "scripts" / "launch.sh")]
-
-
-def wait_until(cond: Callable[[], Any], timeout: float, poll: float = 0.5) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(poll)
-    return bool(cond())
 
 
 def rss_kb(pid: int) -> int | None:
@@ -224,7 +215,7 @@ def main() -> int:
     kills: list[tuple[str, float]] = []
     try:
         t_boot = time.monotonic()
-        if not wait_until(lambda: expected <= set(children(launcher.pid)), 180):
+        if not wait_until(lambda: expected <= set(children(launcher.pid)), 180, poll=0.5):
             print(f"[soak] the graph never came up; see {run / 'soak-launcher.log'}")
             return 1
         print(f"[soak] all {len(expected)} processes up after {time.monotonic() - t_boot:.1f}s;"

@@ -86,8 +86,7 @@ def test_an_unwritable_run_dir_is_one_line(tmp_path: Path, bad: str) -> None:
 def test_an_actor_that_cannot_act_fails(tmp_path: Path) -> None:
     """Weights with another observation length given to the actor directly (no launcher check):
     three observations it cannot use before any answer end it with exit code 1 and one line."""
-    import rclpy
-    from rclpy.context import Context
+    from ros.own_node import own_node
 
     from sdhn_base.ros.qos import STEP
     from sdhn_msgs.msg import RobotObservation
@@ -98,27 +97,23 @@ def test_an_actor_that_cannot_act_fails(tmp_path: Path) -> None:
            "--ros-args", "-r", f"__ns:={ns}/robot_0", "-p", f"team_ns:={ns}",
            "-p", "robot_id:=0", "-p", "num_robots:=2", "-p", f"weights_file:={w}"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("obs_sender", context=context)
-    pub = node.create_publisher(RobotObservation, f"{ns}/robot_0/obs", STEP)
     try:
-        deadline = time.monotonic() + 60
-        while pub.get_subscription_count() == 0:
-            assert time.monotonic() < deadline and proc.poll() is None, "actor never subscribed"
-            time.sleep(0.05)
-        msg = RobotObservation()
-        msg.robot_id, msg.num_robots = 0, 2
-        msg.obs = [0.0] * 7
-        for _ in range(3):  # as the simulator re-sends step 0 to a silent actor
-            pub.publish(msg)
-            time.sleep(0.2)
-        _, err = proc.communicate(timeout=30)
+        with own_node("obs_sender") as node:
+            pub = node.create_publisher(RobotObservation, f"{ns}/robot_0/obs", STEP)
+            deadline = time.monotonic() + 60
+            while pub.get_subscription_count() == 0:
+                assert time.monotonic() < deadline and proc.poll() is None, "actor never subscribed"
+                time.sleep(0.05)
+            msg = RobotObservation()
+            msg.robot_id, msg.num_robots = 0, 2
+            msg.obs = [0.0] * 7
+            for _ in range(3):  # as the simulator re-sends step 0 to a silent actor
+                pub.publish(msg)
+                time.sleep(0.2)
+            _, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
     assert proc.returncode == 1, err
     assert "cannot act" in err and "Traceback" not in err, err
 

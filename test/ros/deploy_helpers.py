@@ -17,6 +17,7 @@ import numpy as np
 
 from sdhn_base.ros import topics
 
+from .own_node import own_node_and_executor
 from .processes import ROS2
 
 TEAM_NS = "/sdhn"
@@ -129,9 +130,7 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     """An rclpy node in the test process that subscribes to every obs, action, state and episode
     topic (the simulator counts it with ``extra_subscribers=1``) and to /diagnostics. Yields
     (node, seen, spin)."""
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
     from rclpy.qos import QoSProfile
 
@@ -143,56 +142,47 @@ def observer(num_robots: int, ns: str = TEAM_NS) -> Iterator[tuple[Any, Seen, An
     # (otherwise it can miss an action the recording and the trainer both have).
     qos = QoSProfile(history=STEP.history, depth=65536, reliability=STEP.reliability,
                      durability=STEP.durability)
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("test_observer", context=context)
-    ex = EventsExecutor(context=context)
-    ex.add_node(node)
-    seen = Seen()
+    with own_node_and_executor("test_observer", EventsExecutor) as (node, ex):
+        seen = Seen()
 
-    def on_action(m: Any) -> None:
-        key = (int(m.episode), int(m.step), int(m.robot_id))
-        assert key not in seen.actions, f"duplicate action {key}"
-        seen.actions[key] = (int(m.action), int(m.policy_version))
+        def on_action(m: Any) -> None:
+            key = (int(m.episode), int(m.step), int(m.robot_id))
+            assert key not in seen.actions, f"duplicate action {key}"
+            seen.actions[key] = (int(m.action), int(m.policy_version))
 
-    def on_obs(_m: Any) -> None:
-        seen.obs_count += 1
+        def on_obs(_m: Any) -> None:
+            seen.obs_count += 1
 
-    def on_state(_m: Any) -> None:
-        seen.state_count += 1
+        def on_state(_m: Any) -> None:
+            seen.state_count += 1
 
-    subs = [node.create_subscription(RobotAction, topics.absolute(ns, topics.robot_action(i)),
-                                     on_action, qos)
-            for i in range(num_robots)]
-    subs += [node.create_subscription(RobotObservation, topics.absolute(ns, topics.robot_obs(i)),
-                                      on_obs, qos)
-             for i in range(num_robots)]
-    subs.append(node.create_subscription(TeamState, topics.absolute(ns, topics.STATE), on_state,
-                                         qos))
-    subs.append(node.create_subscription(EpisodeSummary, topics.absolute(ns, topics.EPISODE),
-                                         seen.episodes.append, qos))
+        subs = [node.create_subscription(
+                    RobotAction, topics.absolute(ns, topics.robot_action(i)), on_action, qos)
+                for i in range(num_robots)]
+        subs += [node.create_subscription(
+                     RobotObservation, topics.absolute(ns, topics.robot_obs(i)), on_obs, qos)
+                 for i in range(num_robots)]
+        subs.append(node.create_subscription(TeamState, topics.absolute(ns, topics.STATE),
+                                             on_state, qos))
+        subs.append(node.create_subscription(EpisodeSummary, topics.absolute(ns, topics.EPISODE),
+                                             seen.episodes.append, qos))
 
-    def on_diagnostics(m: Any) -> None:
-        for status in m.status:
-            seen.diagnostics.setdefault(status.name, []).append(status)
+        def on_diagnostics(m: Any) -> None:
+            for status in m.status:
+                seen.diagnostics.setdefault(status.name, []).append(status)
 
-    subs.append(node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics,
-                                         DIAGNOSTICS))
+        subs.append(node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics,
+                                             DIAGNOSTICS))
 
-    def spin(seconds: float, until: Any = None) -> bool:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            ex.spin_once(timeout_sec=0.02)
-            if until is not None and until():
-                return True
-        return until is None
+        def spin(seconds: float, until: Any = None) -> bool:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                ex.spin_once(timeout_sec=0.02)
+                if until is not None and until():
+                    return True
+            return until is None
 
-    try:
         yield node, seen, spin
-    finally:
-        ex.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def stop_all(procs: list[Any], timeout: float = 10.0) -> None:

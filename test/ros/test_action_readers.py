@@ -22,6 +22,7 @@ from sdhn_bringup.launch_graph import actor_node, node_parameters
 from sdhn_bringup.launch_load import load_config, resolve
 
 from .deploy_helpers import EXACT_DEADLINE_S, actor_cmd, sim_cmd, stop_all
+from .own_node import own_node_and_executor
 from .processes import node_processes
 
 pytestmark = pytest.mark.ros
@@ -87,21 +88,10 @@ class LateObserver:
 
 @pytest.fixture
 def late_observer() -> Iterator[LateObserver]:
-    import rclpy
-    from rclpy.context import Context
     from rclpy.experimental import EventsExecutor
 
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("late_observer", context=context)
-    executor = EventsExecutor(context=context)
-    executor.add_node(node)
-    try:
+    with own_node_and_executor("late_observer", EventsExecutor) as (node, executor):
         yield LateObserver(node, executor)
-    finally:
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 def test_a_reader_discovered_late_gets_every_action_from_step_0(

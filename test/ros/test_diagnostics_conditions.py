@@ -12,31 +12,23 @@ from typing import Any
 from sdhn_base.ros import topics
 
 from .deploy_helpers import actor_cmd, sim_cmd, stop_all
+from .own_node import own_node_and_executor
 from .processes import node_processes
 
 N, NS = 4, "/sdhn_diag_cond"
 
 
 def test_diagnostics_report_the_clock_conditions_and_failed_robots(weights: Path) -> None:
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
 
     from sdhn_base.ros.qos import DIAGNOSTICS
 
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("test_diag_conditions", context=context)
-    ex = SingleThreadedExecutor(context=context)
-    ex.add_node(node)
     last: dict[str, dict[str, str]] = {}
 
     def on_diag(m: Any) -> None:
         for s in m.status:
             last[s.name] = {kv.key: kv.value for kv in s.values}
 
-    node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diag, DIAGNOSTICS)
     # fail_after_missed 10 ticks (0.5 s): well above the missed ticks a loaded machine gives a
     # live robot, so only the cut robot 3 is declared failed (docs/running-the-stack.md)
     cmds = [sim_cmd(ns=NS, episodes=0, max_steps=40, seed=5, clock="realtime", rate_hz=20.0,
@@ -55,17 +47,14 @@ def test_diagnostics_report_the_clock_conditions_and_failed_robots(weights: Path
         return (int(v.get("silent_robots_failed", "0")) >= 1 and int(v.get("steps", "0")) >= 30
                 and actor_name in last)
 
-    try:
+    with own_node_and_executor("test_diag_conditions") as (node, ex):
+        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diag, DIAGNOSTICS)
         with node_processes(*cmds) as procs:
             end = time.monotonic() + 90
             while time.monotonic() < end and not enough():
                 ex.spin_once(timeout_sec=0.05)
             assert enough(), (last.get(sim_name), [p.output[-2000:] for p in procs])
             stop_all(procs)
-    finally:
-        ex.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
     v = last[sim_name]
     assert v["clock"] == "realtime" and float(v["rate_hz"]) == 20.0
     assert v["conditions"] == "lost_actions=0.2"

@@ -16,13 +16,13 @@ import rclpy
 import yaml
 from rcl_interfaces.srv import GetParameters
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import parameter_value_to_python
 
 from sdhn_bringup.launch_graph import PARAMS_FILE, graph, node_parameters
 from sdhn_bringup.launch_load import load_config
 from sdhn_bringup.params_doc import main as params_doc
 
+from .own_node import own_node_and_executor
 from .processes import REPO, ROS2, node_processes
 
 PARAMS = REPO / "configs" / "params"
@@ -49,12 +49,7 @@ def file_values(path: Path, fqn: str) -> dict[str, Any]:
 
 def ask(fqn: str, names: list[str], timeout: float = 30.0) -> dict[str, Any]:
     """The node's current values of ``names``, through its get_parameters service."""
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("params_file_test", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    try:
+    with own_node_and_executor("params_file_test") as (node, executor):
         client = node.create_client(GetParameters, f"{fqn}/get_parameters")
         assert client.wait_for_service(timeout_sec=timeout), f"{fqn}: no parameter service"
         # A service can answer before its response writer has matched this client's response
@@ -74,10 +69,6 @@ def ask(fqn: str, names: list[str], timeout: float = 30.0) -> dict[str, Any]:
         assert result is not None, f"{fqn}: get_parameters unanswered ({attempts} attempts)"
         return {n: parameter_value_to_python(v) for n, v in zip(names, result.values,
                                                                strict=True)}
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
 
 @pytest.mark.parametrize("name", sorted(NODES))

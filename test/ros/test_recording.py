@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 import pytest
 import rclpy
-from rclpy.context import Context
 from rosbags.highlevel import AnyReader
 
 from sdhn_base.ros import topics
@@ -29,6 +28,7 @@ from sdhn_sim.recording.reader import (
 )
 from sdhn_sim.recording.writer import McapRosWriter
 
+from .own_node import own_node, own_node_and_executor
 from .processes import ROS2, node_processes
 from .team_stream import ENV, hypergraph_message, team_stream, weights_message
 
@@ -45,24 +45,23 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, s
     """Publish a 4-robot MAIF stream from this process while a recorder process records it."""
     out = tmp_path_factory.mktemp("rec") / "run.mcap"
     ns = "/rectest"
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("rec_test_publisher", context=context)
     msgs = list(team_stream(EPISODES, MAX_STEPS))
     from sdhn_msgs.msg import Hypergraph, PolicyWeights
 
     types = {o.topic: type(o.message) for o in msgs}
-    pubs = {topic: node.create_publisher(cls, topics.absolute(ns, topic), STEP)
-            for topic, cls in types.items()}
-    weights = node.create_publisher(PolicyWeights, topics.absolute(ns, topics.WEIGHTS), LATCHED)
-    graphs = node.create_publisher(Hypergraph, topics.absolute(ns, topics.HYPERGRAPH), SENSOR)
-    weights.publish(weights_message(1))  # before the recorder exists: must arrive latched
     # viz:=false (the default, named here because it matters): rosbags 0.11.9 cannot open a file
     # that also holds the protobuf viz channels.
     # (it reads every schema as ROS text); recordings with viz are tested in test_recording_viz
     command = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={out}",
                "-p", f"team_ns:={ns}", "-p", "viz:=false"]
-    try:
+    with own_node("rec_test_publisher") as node:
+        pubs = {topic: node.create_publisher(cls, topics.absolute(ns, topic), STEP)
+                for topic, cls in types.items()}
+        weights = node.create_publisher(PolicyWeights, topics.absolute(ns, topics.WEIGHTS),
+                                        LATCHED)
+        graphs = node.create_publisher(Hypergraph, topics.absolute(ns, topics.HYPERGRAPH),
+                                       SENSOR)
+        weights.publish(weights_message(1))  # before the recorder exists: must arrive latched
         with node_processes(command) as (recorder,):
             assert recorder.wait_for_line("ready", timeout=20), recorder.output
             deadline = time.monotonic() + 15
@@ -87,9 +86,6 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, s
             assert recorder.stop(timeout=5.0) == 0, recorder.output
             print(f"published {len(msgs)} step messages in {publish_s:.3f} s; recorder said:\n"
                   + "\n".join(line for line in recorder.lines if "closed" in line))
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
     yield out, ns
 
 
@@ -235,7 +231,6 @@ def test_rate_delivers_every_message_to_a_slow_subscriber(tmp_path: Path) -> Non
     messages in its own queue, which DDS acknowledges on arrival: README, Reliability.)"""
     import threading
 
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     from sdhn_msgs.msg import TeamState
@@ -253,26 +248,16 @@ def test_rate_delivers_every_message_to_a_slow_subscriber(tmp_path: Path) -> Non
         time.sleep(0.002)
         got.append(int(msg.step))
 
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("slow_sub", context=context)
     keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-    sub = node.create_subscription(TeamState, topics.absolute(ns, topics.STATE), slow, keep_all)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    spin = threading.Thread(target=executor.spin, daemon=True)
-    spin.start()
-    try:
+    with own_node_and_executor("slow_sub") as (node, executor):
+        node.create_subscription(TeamState, topics.absolute(ns, topics.STATE), slow, keep_all)
+        spin = threading.Thread(target=executor.spin, daemon=True)
+        spin.start()
         done = subprocess.run([*REPLAY, str(path), "--rate", "10", "--wait", "10"],
                               capture_output=True, text=True, timeout=120, check=False)
         deadline = time.monotonic() + 15
         while len(got) < n and time.monotonic() < deadline:
             time.sleep(0.1)
-    finally:
-        executor.shutdown()
-        node.destroy_subscription(sub)
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
     assert done.returncode == 0, done.stderr
     assert got == list(range(n)), f"{len(got)} of {n} delivered"
 

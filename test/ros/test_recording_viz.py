@@ -21,11 +21,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-import rclpy
 import websockets
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
-from rclpy.context import Context
 
 from sdhn_base.ros.qos import SENSOR
 from sdhn_msgs.msg import Hypergraph
@@ -36,6 +34,7 @@ from sdhn_sim.recording.writer import McapRosWriter
 from sdhn_sim.viz.draw import map_to_cell
 
 from .deploy_helpers import TEAM_NS, actor_cmd, sim_cmd
+from .own_node import own_node
 from .processes import ROS2, node_processes
 from .team_stream import ENV, hypergraph_message, team_stream
 from .test_viz import SUBPROTOCOLS, TOPICS, FoxgloveClient
@@ -81,51 +80,47 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Run]:
     # until its action writer has matched all three)
     actors = [actor_cmd(i, N, weights_file=weights, seed=i, action_readers=3)
               for i in range(N)]
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("vizrec_hypergraphs", context=context)
-    # The trainer's profile: best effort, so a sample published before a recorder's reader has
-    # matched this writer is simply not delivered to it (nothing is re-sent).
-    graphs = node.create_publisher(Hypergraph, f"{TEAM_NS}/hypergraph", SENSOR)
-    stop = threading.Event()
+    with own_node("vizrec_hypergraphs") as node:
+        # The trainer's profile: best effort, so a sample published before a recorder's reader has
+        # matched this writer is simply not delivered to it (nothing is re-sent).
+        graphs = node.create_publisher(Hypergraph, f"{TEAM_NS}/hypergraph", SENSOR)
+        stop = threading.Event()
 
-    def publish_graphs() -> None:
-        k = 0
-        while not stop.wait(0.02):
-            graphs.publish(hypergraph_message(k))
-            k += 1
+        def publish_graphs() -> None:
+            k = 0
+            while not stop.wait(0.02):
+                graphs.publish(hypergraph_message(k))
+                k += 1
 
-    try:
-        with node_processes(*recorders, *actors) as procs:
-            for p in procs:
-                assert p.wait_for_line("ready", timeout=30), p.output
-            # A recorder being ready says nothing about this process's writer: the sim only waits
-            # for the recorders' obs/state subscriptions, and its run can be over before the
-            # hypergraph writer and the recorders' best-effort readers have discovered each
-            # other. Start the run only once both recorders are matched.
-            deadline = time.monotonic() + 30
-            while graphs.get_subscription_count() < 2 and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert graphs.get_subscription_count() >= 2, (
-                f"hypergraph writer matched {graphs.get_subscription_count()} of 2 recorders")
-            thread = threading.Thread(target=publish_graphs, daemon=True)
-            thread.start()
-            # both recorders must see every obs and state before step 0 (extra_subscribers=2)
-            sim = sim_cmd(episodes=EPISODES, max_steps=MAX_STEPS, seed=3, extra_subscribers=2)
-            with node_processes(sim) as (simp,):
-                assert simp.proc.wait(timeout=60) == 0, simp.output
+        try:
+            with node_processes(*recorders, *actors) as procs:
+                for p in procs:
+                    assert p.wait_for_line("ready", timeout=30), p.output
+                # A recorder being ready says nothing about this process's writer: the sim only
+                # waits for the recorders' obs/state subscriptions, and its run can be over before
+                # the hypergraph writer and the recorders' best-effort readers have discovered
+                # each other. Start the run only once both recorders are matched.
+                deadline = time.monotonic() + 30
+                while graphs.get_subscription_count() < 2 and time.monotonic() < deadline:
+                    time.sleep(0.02)
+                assert graphs.get_subscription_count() >= 2, (
+                    f"hypergraph writer matched {graphs.get_subscription_count()} of 2 recorders")
+                thread = threading.Thread(target=publish_graphs, daemon=True)
+                thread.start()
+                # both recorders must see every obs and state before step 0 (extra_subscribers=2)
+                sim = sim_cmd(episodes=EPISODES, max_steps=MAX_STEPS, seed=3, extra_subscribers=2)
+                with node_processes(sim) as (simp,):
+                    assert simp.proc.wait(timeout=60) == 0, simp.output
+                stop.set()
+                thread.join()
+                time.sleep(0.3)
+                for rec in procs[:2]:
+                    assert rec.stop(timeout=10.0) == 0, rec.output
+                lines = [line for rec in procs[:2] for line in rec.lines
+                         if "]: closed" in line or "]: viz:" in line]
+                print("\n".join(lines))
+        finally:
             stop.set()
-            thread.join()
-            time.sleep(0.3)
-            for rec in procs[:2]:
-                assert rec.stop(timeout=10.0) == 0, rec.output
-            lines = [line for rec in procs[:2] for line in rec.lines
-                     if "]: closed" in line or "]: viz:" in line]
-            print("\n".join(lines))
-    finally:
-        stop.set()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
     yield Run(viz, plain, lines)
 
 

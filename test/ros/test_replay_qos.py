@@ -10,8 +10,6 @@ import sys
 import time
 from pathlib import Path
 
-import rclpy
-from rclpy.context import Context
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
@@ -19,6 +17,7 @@ from sdhn_base.ros import topics
 from sdhn_base.ros.qos import LATCHED, SENSOR, STEP
 from sdhn_sim.recording.writer import McapRosWriter
 
+from .own_node import own_node
 from .processes import ROS2, node_processes
 from .team_stream import weights_message
 
@@ -72,26 +71,19 @@ def test_replay_republishes_every_topic_with_its_recorded_qos(tmp_path: Path) ->
     path = tmp_path / "qos.mcap"
     recorded = write_recording(path)
     weights = topics.absolute(NS, topics.WEIGHTS)
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("replay_qos_observer", context=context)
     replay = [*ROS2, "run", "sdhn_sim", "replay", str(path), "--rate", "1", "--wait", "0"]
-    try:
-        with node_processes(replay) as (player,):
-            deadline = time.monotonic() + 30
-            while not all(node.get_publishers_info_by_topic(t) for t in recorded):
-                assert player.proc.poll() is None, player.output
-                assert time.monotonic() < deadline, f"replay never published:\n{player.output}"
-                time.sleep(0.05)
-            # Started after the replay published the weights: only transient-local delivers them.
-            late = subprocess.run([sys.executable, "-c", LATE, weights], capture_output=True,
-                                  text=True, timeout=60, check=False)
-            offered = {t: node.get_publishers_info_by_topic(t)[0].qos_profile for t in recorded}
-            assert player.proc.poll() is None, "the replay ended before the late joiner asked"
-            player.stop()
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    with own_node("replay_qos_observer") as node, node_processes(replay) as (player,):
+        deadline = time.monotonic() + 30
+        while not all(node.get_publishers_info_by_topic(t) for t in recorded):
+            assert player.proc.poll() is None, player.output
+            assert time.monotonic() < deadline, f"replay never published:\n{player.output}"
+            time.sleep(0.05)
+        # Started after the replay published the weights: only transient-local delivers them.
+        late = subprocess.run([sys.executable, "-c", LATE, weights], capture_output=True,
+                              text=True, timeout=60, check=False)
+        offered = {t: node.get_publishers_info_by_topic(t)[0].qos_profile for t in recorded}
+        assert player.proc.poll() is None, "the replay ended before the late joiner asked"
+        player.stop()
     assert "VERSIONS [2]" in late.stdout, (late.stdout, late.stderr)
     for topic, want in recorded.items():
         got = offered[topic]

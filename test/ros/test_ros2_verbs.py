@@ -24,6 +24,7 @@ from sdhn_sim.recording.reader import decode, read_recording
 from sdhn_sim.sim_node import PARAMETERS
 
 from .deploy_helpers import sim_cmd
+from .own_node import own_node_and_executor
 from .processes import ROS2, NodeProcess, node_processes
 
 NS = "/sdhn_cli"
@@ -225,43 +226,32 @@ def test_bag_record_info_play(graph: Any, tmp_path: Path) -> None:
     assert "Note: no summary" in partial.stdout, partial.stdout
 
     # play: every recorded peer observation arrives, unchanged, with the recorded QoS.
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile
+    from std_msgs.msg import String
 
     from sdhn_msgs.msg import RobotObservation
 
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("bag_play_listener", context=context)
     got: list[Any] = []
     replay_ns = OBS  # played on the recorded name; the peer is stopped first so only the bag plays
     peer, _sim = graph
-    peer.stop()
-    node.create_subscription(RobotObservation, replay_ns, got.append,
-                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                                        durability=DurabilityPolicy.VOLATILE))
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    from std_msgs.msg import String
-
-    node.create_subscription(String, NOTE, lambda _m: None,
-                             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    # -d: up to 60 s until both played topics have this listener (discovery on a busy machine)
-    play = NodeProcess([*ROS2, "bag", "play", str(bag), "-r", "5", "-d", "60"])
-    try:
-        end = time.monotonic() + 120
-        while play.proc.poll() is None and time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.05)
-        for _ in range(20):
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        play.stop()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
+    with own_node_and_executor("bag_play_listener") as (node, executor):
+        peer.stop()
+        node.create_subscription(RobotObservation, replay_ns, got.append,
+                                 QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                                            durability=DurabilityPolicy.VOLATILE))
+        node.create_subscription(String, NOTE, lambda _m: None,
+                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        # -d: up to 60 s until both played topics have this listener (discovery on a busy machine)
+        play = NodeProcess([*ROS2, "bag", "play", str(bag), "-r", "5", "-d", "60"])
+        try:
+            end = time.monotonic() + 120
+            while play.proc.poll() is None and time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+            for _ in range(20):
+                executor.spin_once(timeout_sec=0.05)
+        finally:
+            play.stop()
     assert play.proc.returncode == 0, play.output
     recorded = [decode(m).step for m in rec.messages if m.topic == OBS]
     assert [m.step for m in got] == recorded, ([m.step for m in got][:5], recorded[:5])

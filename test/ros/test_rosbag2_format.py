@@ -19,13 +19,13 @@ import pytest
 import rclpy
 import yaml
 from mcap.reader import make_reader
-from rclpy.context import Context
 from rclpy.qos import QoSProfile
 from rosbags.highlevel import AnyReader
 
 from sdhn_base.ros import topics
 from sdhn_base.ros.qos import LATCHED, SENSOR, STEP
 
+from .own_node import own_node
 from .processes import ROS2, node_processes
 from .team_stream import hypergraph_message, team_stream, weights_message
 
@@ -49,9 +49,6 @@ class Bag:
 
 def record(output: Path) -> Bag:
     """Publish a short 4-robot stream with the contract's profiles while a recorder records."""
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("bag_test_publisher", context=context)
     msgs = list(team_stream(1, 6))
     from sdhn_msgs.msg import Hypergraph, PolicyWeights
 
@@ -59,14 +56,14 @@ def record(output: Path) -> Bag:
     profile = {topics.absolute(NS, t): STEP for t in types}
     profile[topics.absolute(NS, topics.WEIGHTS)] = LATCHED
     profile[topics.absolute(NS, topics.HYPERGRAPH)] = SENSOR
-    pubs = {t: node.create_publisher(cls, topics.absolute(NS, t), STEP)
-            for t, cls in types.items()}
-    weights = node.create_publisher(PolicyWeights, topics.absolute(NS, topics.WEIGHTS), LATCHED)
-    graphs = node.create_publisher(Hypergraph, topics.absolute(NS, topics.HYPERGRAPH), SENSOR)
-    weights.publish(weights_message(1))
     command = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-p", f"output:={output}",
                "-p", f"team_ns:={NS}"]
-    try:
+    with own_node("bag_test_publisher") as node:
+        pubs = {t: node.create_publisher(cls, topics.absolute(NS, t), STEP)
+                for t, cls in types.items()}
+        weights = node.create_publisher(PolicyWeights, topics.absolute(NS, topics.WEIGHTS), LATCHED)
+        graphs = node.create_publisher(Hypergraph, topics.absolute(NS, topics.HYPERGRAPH), SENSOR)
+        weights.publish(weights_message(1))
         with node_processes(command) as (recorder,):
             assert recorder.wait_for_line("ready", timeout=30), recorder.output
             deadline = time.monotonic() + 20
@@ -84,9 +81,6 @@ def record(output: Path) -> Bag:
             time.sleep(0.3)
             assert recorder.stop(timeout=10.0) == 0, recorder.output
             line = next(x for x in recorder.lines if "ready: recording" in x)
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
     path = Path(line.split(" to ", 1)[1].split(" ", 1)[0].rstrip(";"))
     return Bag(path, profile, str(output))
 

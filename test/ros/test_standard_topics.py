@@ -16,6 +16,7 @@ from sdhn_sim.envs.maif import ACTION_DELTAS
 from sdhn_sim.poses import cell_center
 
 from .deploy_helpers import actor_cmd, sim_cmd, stop_all
+from .own_node import own_node_and_executor
 from .processes import ROS2, node_processes
 
 N = 4
@@ -36,11 +37,8 @@ def stamp_ns(m: Any) -> int:
 
 
 def test_diagnostics_poses_and_target_poses(weights: Path, tmp_path: Path) -> None:
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseArray, PoseStamped
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile
 
     from sdhn_base.ros.qos import DIAGNOSTICS, POSES, STEP
@@ -48,11 +46,6 @@ def test_diagnostics_poses_and_target_poses(weights: Path, tmp_path: Path) -> No
 
     deep = QoSProfile(history=STEP.history, depth=65536, reliability=STEP.reliability,
                       durability=STEP.durability)
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("test_standard", context=context)
-    ex = SingleThreadedExecutor(context=context)
-    ex.add_node(node)
     diag: dict[str, list[tuple[float, Any]]] = defaultdict(list)
     states: dict[int, Any] = {}
     poses: dict[int, Any] = {}
@@ -63,16 +56,6 @@ def test_diagnostics_poses_and_target_poses(weights: Path, tmp_path: Path) -> No
         for s in m.status:
             diag[s.name].append((time.monotonic(), s))
 
-    node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diag, DIAGNOSTICS)
-    node.create_subscription(TeamState, topics.absolute(NS, topics.STATE),
-                             lambda m: states.__setitem__(stamp_ns(m), m), deep)
-    node.create_subscription(PoseArray, topics.absolute(NS, topics.POSES),
-                             lambda m: poses.__setitem__(stamp_ns(m), m), POSES)
-    for i in range(N):
-        node.create_subscription(RobotAction, topics.absolute(NS, topics.robot_action(i)),
-                                 lambda m: actions.__setitem__(stamp_ns(m), m), deep)
-        node.create_subscription(PoseStamped, topics.absolute(NS, topics.robot_target_pose(i)),
-                                 lambda m: targets.__setitem__(stamp_ns(m), m), POSES)
     recorder = [*ROS2, "run", "sdhn_sim", "recorder", "--ros-args", "-r", f"__ns:={NS}",
                 "-p", f"team_ns:={NS}", "-p", f"output:={tmp_path / 'run.mcap'}"]
     cmds = [sim_cmd(ns=NS, episodes=0, max_steps=30, step_deadline=0.5, seed=5,
@@ -80,7 +63,18 @@ def test_diagnostics_poses_and_target_poses(weights: Path, tmp_path: Path) -> No
             # action readers: the simulator, the recorder and this test's node
             recorder, *(actor_cmd(i, N, NS, weights_file=weights, env="maif-tiny",
                                   action_readers=3) for i in range(N))]
-    try:
+    with own_node_and_executor("test_standard") as (node, ex):
+        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diag, DIAGNOSTICS)
+        node.create_subscription(TeamState, topics.absolute(NS, topics.STATE),
+                                 lambda m: states.__setitem__(stamp_ns(m), m), deep)
+        node.create_subscription(PoseArray, topics.absolute(NS, topics.POSES),
+                                 lambda m: poses.__setitem__(stamp_ns(m), m), POSES)
+        for i in range(N):
+            node.create_subscription(RobotAction, topics.absolute(NS, topics.robot_action(i)),
+                                     lambda m: actions.__setitem__(stamp_ns(m), m), deep)
+            node.create_subscription(PoseStamped,
+                                     topics.absolute(NS, topics.robot_target_pose(i)),
+                                     lambda m: targets.__setitem__(stamp_ns(m), m), POSES)
         with node_processes(*cmds) as procs:
             def enough() -> bool:
                 return (all(len(diag[name]) >= 3 for name in KEYS) and len(poses) >= 10
@@ -92,10 +86,6 @@ def test_diagnostics_poses_and_target_poses(weights: Path, tmp_path: Path) -> No
             assert enough(), ({k: len(v) for k, v in diag.items()}, len(poses), len(targets),
                               [p.output[-2000:] for p in procs])
             stop_all(procs)
-    finally:
-        ex.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
 
     for name, keys in KEYS.items():
         got = diag[name]

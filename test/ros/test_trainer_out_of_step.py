@@ -21,6 +21,7 @@ from sdhn_base.ros.qos import STEP
 from sdhn_train.trainer_node import OUT_OF_STEP_STEPS
 
 from .deploy_helpers import status_watched_trainer
+from .own_node import own_node
 from .processes import node_processes
 from .team_stream import Out, team_stream
 
@@ -42,40 +43,34 @@ def steps(stream: Iterator[Out]) -> Iterator[list[Out]]:
 
 def test_out_of_step_trainer_resubscribes_and_assembles_again(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import rclpy
-    from rclpy.context import Context
-
     from sdhn_msgs.msg import EpisodeSummary, RobotAction, RobotObservation, TeamState
 
     trainer_args, status_dir = status_watched_trainer(tmp_path, monkeypatch, NS)
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node("team", context=context)
     types = {topics.STATE: TeamState, topics.EPISODE: EpisodeSummary}
     for i in range(N):
         types[topics.robot_obs(i)] = RobotObservation
         types[topics.robot_action(i)] = RobotAction
-    pubs = {t: node.create_publisher(m, topics.absolute(NS, t), STEP) for t, m in types.items()}
-    step_topics = [t for t in pubs if t != topics.EPISODE]
+    with own_node("team") as node:
+        pubs = {t: node.create_publisher(m, topics.absolute(NS, t), STEP) for t, m in types.items()}
+        step_topics = [t for t in pubs if t != topics.EPISODE]
 
-    def status() -> dict:
-        try:
-            return json.loads((status_dir / "trainer.status.json").read_text())
-        except (OSError, ValueError):
-            return {}
+        def status() -> dict:
+            try:
+                return json.loads((status_dir / "trainer.status.json").read_text())
+            except (OSError, ValueError):
+                return {}
 
-    def matched() -> bool:
-        return all(pubs[t].get_subscription_count() >= 1 for t in step_topics)
+        def matched() -> bool:
+            return all(pubs[t].get_subscription_count() >= 1 for t in step_topics)
 
-    def play(batches: Iterator[list[Out]], count: int, silent: bool) -> None:
-        for _, batch in zip(range(count), batches, strict=False):
-            for out in batch:
-                if silent and out.topic == topics.robot_action(SILENT):
-                    continue
-                pubs[out.topic].publish(out.message)
-            time.sleep(0.003)  # ~300 steps/s: the trainer keeps up, the queues never overflow
+        def play(batches: Iterator[list[Out]], count: int, silent: bool) -> None:
+            for _, batch in zip(range(count), batches, strict=False):
+                for out in batch:
+                    if silent and out.topic == topics.robot_action(SILENT):
+                        continue
+                    pubs[out.topic].publish(out.message)
+                time.sleep(0.003)  # ~300 steps/s: the trainer keeps up, the queues never overflow
 
-    try:
         with node_processes(trainer_args) as (trainer,):
             assert trainer.wait_for_line("ready", timeout=90), trainer.output
             deadline = time.monotonic() + 30
@@ -98,9 +93,6 @@ def test_out_of_step_trainer_resubscribes_and_assembles_again(
                 play(batches, 100, silent=False)
             st = status()
             assert trainer.stop(timeout=20) == 0, trainer.output
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
     print(f"\nstatus after resubscribing: transitions={st['transitions']} "
           f"resubscribed={st['resubscribed']} missing={st['missing']}")
     assert max(st["missing"], key=st["missing"].get) == f"action {SILENT}", st["missing"]

@@ -80,7 +80,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from .api import BatchedEnv, BoolArray, EpisodeStats, FloatArray, IntArray, StepResult
+from .api import BatchedEnv, BoolArray, EpisodeStats, FloatArray, IntArray, StepResult, reward_name
 
 STAY = 0  # MAIF 'stay' and RWARE 'noop' are both action 0
 _WIN = 7
@@ -480,7 +480,7 @@ class ConditionedEnv:
         self.state_size = env.state_size
         self.num_actions = env.num_actions
         self.max_steps = env.max_steps
-        self.reward_name = str(getattr(env, "reward_name", "env"))
+        self.reward_name = reward_name(env)
         grid = getattr(env, "size", None)
         self._maif = isinstance(grid, int) and env.obs_size == MAIF_OBS
         base_seed = seed if seed is not None else int(getattr(env, "_seed", 0))

@@ -28,7 +28,7 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, BinaryIO, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -40,6 +40,9 @@ from sdhn_base.drops import DropKind
 from sdhn_base.ros import topics
 from sdhn_sim.episode import EpisodeResult
 from sdhn_sim.recording.schema import message_class
+
+if TYPE_CHECKING:
+    from mcap.writer import Writer as McapWriter
 
 
 @dataclass(frozen=True)
@@ -252,25 +255,34 @@ class VizUpgrade:
     team_ns: str | None
 
 
+def copy_writer(stream: BinaryIO, rec: Recording, library: str,
+                chunk_bytes: int) -> tuple[McapWriter, dict[int, int]]:
+    """A started MCAP writer on ``stream`` with ``rec``'s profile, schemas and channels
+    registered, and each channel's new id by its id in ``rec``: what writing a copy of a
+    recording starts with (``--add-viz``, ``--recover``)."""
+    from mcap.writer import CompressionType, Writer
+
+    writer = Writer(stream, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
+    writer.start(profile=rec.profile or "ros2", library=library)
+    schema_ids = {old: writer.register_schema(s.name, s.encoding, s.data)
+                  for old, s in rec.schemas.items()}
+    channel_ids = {old: writer.register_channel(c.topic, c.message_encoding,
+                                                schema_ids.get(c.schema_id, 0), dict(c.metadata))
+                   for old, c in rec.channels.items()}
+    return writer, channel_ids
+
+
 def write_with_viz(rec: Recording, out: Path, chunk_bytes: int = 256 * 1024) -> VizUpgrade:
     """Write ``out``: every message of ``rec`` (same schemas, channels, times, sequence numbers,
     in file order) plus the viz channels derived from the team's state, hypergraph and episode
     messages (``sdhn_sim.viz.channels``), each right after its source message."""
-    from mcap.writer import CompressionType, Writer
-
     from sdhn_sim.viz.channels import VizDeriver, VizMcapChannels
 
     ns = team_namespace(rec)
     deriver = VizDeriver()
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("wb") as stream:
-        writer = Writer(stream, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
-        writer.start(profile=rec.profile or "ros2", library="sdhn replay --add-viz")
-        schema_ids = {old: writer.register_schema(s.name, s.encoding, s.data)
-                      for old, s in rec.schemas.items()}
-        channel_ids = {old: writer.register_channel(c.topic, c.message_encoding,
-                                                    schema_ids.get(c.schema_id, 0), c.metadata)
-                       for old, c in rec.channels.items()}
+        writer, channel_ids = copy_writer(stream, rec, "sdhn replay --add-viz", chunk_bytes)
         viz = VizMcapChannels(writer)
         for m in rec.messages:
             writer.add_message(channel_ids[m.channel_id], m.log_time_ns, m.data,

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sdhn_sim.recording import rosbag2
-from sdhn_sim.recording.reader import Recording, fresh_path
+from sdhn_sim.recording.reader import Recording, copy_writer, fresh_path
 
 
 @dataclass(frozen=True)
@@ -30,22 +30,13 @@ class Recovered:
 def recover(rec: Recording, requested: Path, chunk_bytes: int = 1 << 20) -> Recovered:
     """Write the readable part of ``rec`` to ``requested`` (or ``<stem>-1.mcap``... when it
     exists); OSError if it cannot be written (nothing is left behind)."""
-    from mcap.writer import CompressionType, Writer
-
     target = fresh_path(requested)
     tmp = target.with_name(f".{target.name}.{os.getpid()}.w.tmp")  # sdhn_base.litter cleans it
     records: dict[int, rosbag2.TopicRecord] = {}
     first = last = None
     try:
         with tmp.open("wb") as stream:
-            writer = Writer(stream, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
-            writer.start(profile=rec.profile or "ros2", library="sdhn replay --recover")
-            schema_ids = {old: writer.register_schema(s.name, s.encoding, s.data)
-                          for old, s in rec.schemas.items()}
-            channel_ids = {old: writer.register_channel(c.topic, c.message_encoding,
-                                                        schema_ids.get(c.schema_id, 0),
-                                                        dict(c.metadata))
-                           for old, c in rec.channels.items()}
+            writer, channel_ids = copy_writer(stream, rec, "sdhn replay --recover", chunk_bytes)
             for m in rec.messages:
                 writer.add_message(channel_ids[m.channel_id], m.log_time_ns, m.data,
                                    m.publish_time_ns, m.sequence)

@@ -342,6 +342,14 @@ def _grid(n: int, width: float = 4.2, height: float = 3.2) -> tuple[Any, list[An
     return fig, flat[:n]
 
 
+def _save(fig: Any, path: Path) -> Path:
+    """Write ``fig`` to ``path`` at the figures' resolution and free it (pyplot keeps every
+    figure open until it is closed)."""
+    fig.savefig(path, dpi=120)
+    _plt().close(fig)
+    return path
+
+
 def _curves(ax: Any, groups: dict[str, list[Run]], tag: str, title: str, *,
             smooth: int = 5, legend: bool = True) -> None:
     for method in _ordered(groups, method_order()):
@@ -395,10 +403,7 @@ def fig_success(runs: list[Run], out: Path, scripted: Scripted) -> Path | None:
     handles, labels = axes[0][0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="center right", fontsize=7)
     fig.tight_layout(rect=(0.0, 0.0, 0.7, 1.0))
-    path = out / "success.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, out / "success.png")
 
 
 def fig_returns(runs: list[Run], out: Path) -> Path | None:
@@ -412,10 +417,7 @@ def fig_returns(runs: list[Run], out: Path) -> Path | None:
         _curves(ax, _by(group, "method"), "charts/episodic_return", task)
         ax.set_ylabel(f"episode return ({group[0].reward} reward)")
     fig.tight_layout()
-    path = out / "returns.png"
-    fig.savefig(path, dpi=120)
-    _plt().close(fig)
-    return path
+    return _save(fig, out / "returns.png")
 
 
 def lambda_sk(run: Run) -> float | None:
@@ -492,10 +494,7 @@ def fig_makespan(runs: list[Run], out: Path, scripted: Scripted) -> Path | None:
     ax.set_title("Average makespan on MAIF (final greedy evaluation)")
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
-    path = out / "makespan.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, out / "makespan.png")
 
 
 def fig_ablations(runs: list[Run], out: Path) -> list[Path]:
@@ -513,10 +512,7 @@ def fig_ablations(runs: list[Run], out: Path) -> list[Path]:
                     f"{task}: {title}")
             ax.set_ylabel(f"episode return ({group['sdhn'][0].reward} reward)")
         fig.tight_layout()
-        path = out / f"ablation_{task}.png"
-        fig.savefig(path, dpi=120)
-        _plt().close(fig)
-        paths.append(path)
+        paths.append(_save(fig, out / f"ablation_{task}.png"))
     return paths
 
 
@@ -561,10 +557,7 @@ def fig_ph_heatmaps(runs: list[Run], out: Path) -> list[Path]:
             ax.set_xlabel("hyperedge j")
             ax.set_ylabel("robot i")
         fig.colorbar(im, ax=list(axes), label="$P_H$")
-        path = out / f"ph_heatmap_{task}.png"
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(_save(fig, out / f"ph_heatmap_{task}.png"))
     return paths
 
 
@@ -584,10 +577,7 @@ def fig_skewness(runs: list[Run], out: Path) -> Path | None:
         shown = ", ".join(f"{t:g}" for t in targets) or "none"
         ax.set_ylabel(f"Sk (target $\\lambda_{{Sk}}$ = {shown})")
     fig.tight_layout()
-    path = out / "skewness.png"
-    fig.savefig(path, dpi=120)
-    _plt().close(fig)
-    return path
+    return _save(fig, out / "skewness.png")
 
 
 def _fmt(vals: list[float], digits: int = 1) -> str:

@@ -195,11 +195,15 @@ def test_trainer_killed_actors_keep_acting_and_restart_resumes(graph) -> None:
     # A bound on a stuck trainer: after its restart it must spawn its learner offload process
     # (torch import, 25-33 s at load 20+ on 2 cores) and finish a rollout and an update.
     assert wait_until(lambda: seen.latest_version() > v_ckpt, 120), (
-        f"no new version after restart: {seen.versions()}\n{launcher.output}")
+        f"no new version after restart: {seen.versions()}; "
+        f"{restarted_trainer(run, seen, t_kill, t_ready)}\n{launcher.output}")
     versions = seen.versions()
+    t_new = next(r.t for r in seen.weights if int(r.msg.version) > v_ckpt)
     report = (f"published v{v_pub} at kill, newest checkpoint v{v_ckpt}; trainer back after "
               f"{t_ready - t_kill:.1f}s: '{lines[0].text[:120]}'; {len(during)} actions while "
-              f"it was down (versions {versions_during}); published versions {versions}")
+              f"it was down (versions {versions_during}); its first new version "
+              f"{first_update(run, t_kill)}, seen {t_new - t_ready:.2f}s after its ready; "
+              f"published versions {versions}")
     print(report)
     assert len(acting) > 0 and len(during) >= N, report
     # Every actor goes on with the weights it had (or ones still in flight at the kill), never
@@ -215,6 +219,40 @@ def test_trainer_killed_actors_keep_acting_and_restart_resumes(graph) -> None:
     assert f"version={v_ckpt} (resumed from step_" in lines[0].text, report
     assert v_ckpt >= v_pub, report
     assert all(b >= a for a, b in itertools.pairwise(versions)), report
+
+
+def first_update(run: Path, t_kill: float) -> str:
+    """The restarted trainer's first update, timed from its ready line (both its own log)."""
+    lines = [ln for ln in log_lines(run / "logs" / "trainer.log") if ln.t > t_kill]
+    ready = next((ln for ln in lines if ln.text.startswith("ready")), None)
+    update = next((ln for ln in lines if ln.text.startswith("update:")), None)
+    if ready is None or update is None:
+        return "none logged"
+    return f"{update.text.split()[1]} {update.t - ready.t:.2f}s after its ready"
+
+
+def restarted_trainer(run: Path, seen: Seen, t_kill: float, t_ready: float) -> str:
+    """Why a restarted trainer published nothing new, in the words of each suspect: the loop
+    (did the simulator and every robot go on after the restart?), the trainer (its status file:
+    steps assembled, drops by cause, what incomplete steps lacked, resubscriptions; its log's
+    last lines, tracebacks of its learner offload process included) and the watcher (when it
+    last heard anything)."""
+    now = time.time()
+    after = {i: [r for r in seen.actions[i] if r.t > t_ready] for i in range(N)}
+    loop = ", ".join(f"robot {i}: {len(v)} (v{max(int(r.msg.policy_version) for r in v)})"
+                     if v else f"robot {i}: 0" for i, v in after.items())
+    states = [s for s in seen.states if s.t > t_ready]
+    last = max((r.t for v in [seen.states, *seen.actions.values()] for r in v[-1:]),
+               default=t_kill)
+    try:
+        status = (run / "status" / "trainer.status.json").read_text()
+    except OSError as e:
+        status = f"({e})"
+    log = (run / "logs" / "trainer.log").read_text(errors="replace").splitlines()
+    return (f"since the restarted trainer's ready ({now - t_ready:.0f}s ago): {len(states)} "
+            f"states, actions {loop}; watcher's last message {now - last:.1f}s ago; first new "
+            f"version {first_update(run, t_kill)}; trainer status: {status.strip()}; "
+            f"trainer log, last lines (kill at {t_kill:.3f}):\n" + "\n".join(log[-60:]))
 
 
 def test_sim_killed_actors_and_trainer_idle_then_continue(graph) -> None:

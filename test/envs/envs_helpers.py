@@ -1,11 +1,21 @@
-"""Shared helpers of the env tests: hand-built MAIF scenarios."""
+"""Shared helpers of the env tests: hand-built MAIF scenarios, greedy play through the
+simulator's lock-step core."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from sdhn_policy.actor_runtime import ActorRuntime
 from sdhn_sim.envs.maif import MaifEnv
 from sdhn_sim.envs.maif_instances import MaifConfig, MaifInstances
+from sdhn_sim.episode import EpisodeResult
+from sdhn_sim.lockstep import LockstepSim
+
+TINY_ACTOR = Path(__file__).resolve().parents[2] / "models/maif-tiny-sdhn/actor.safetensors"
+# an episode's outcome: completed, makespan, the survivors' completed and makespan, failed robots
+Row = tuple[bool, int | None, bool, int | None, int]
 
 
 def scenario(
@@ -32,3 +42,31 @@ def scenario(
     env.reset()
     return env
 
+
+def greedy_lockstep(sim: LockstepSim, episodes: int
+                    ) -> tuple[list[Row], list[dict], list[EpisodeResult]]:
+    """``episodes`` episodes of the tiny MAIF actor answering greedily for each of the 4 robots
+    the simulator still sends observations to (a cut robot says nothing): each episode's outcome
+    row and result, and the simulator's events (faults cut, robots declared failed)."""
+    rt = ActorRuntime.from_file(TINY_ACTOR)
+    rng = np.random.default_rng(0)
+    rows: list[Row] = []
+    events: list[dict] = []
+    results: list[EpisodeResult] = []
+    for _ in range(episodes):
+        frame = sim.reset()
+        h = rt.initial_state(4)
+        result = None
+        while result is None:
+            a, _, h = rt.act(frame.obs, h, greedy=True, rng=rng)
+            for i in range(4):
+                if not sim.cut[i]:
+                    assert sim.submit(i, frame.episode, frame.step, int(a[i]), 1) is None
+            frame, result = sim.advance()
+            events += sim.take_events()
+        o = sim.last_outcome
+        assert o is not None
+        rows.append((o.completed, o.makespan, o.survivors_completed, o.survivors_makespan,
+                     o.failed))
+        results.append(result)
+    return rows, events, results

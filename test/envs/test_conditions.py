@@ -21,7 +21,7 @@ from sdhn_sim.envs.conditions import (
 )
 from sdhn_sim.lockstep import LockstepSim, SimConfig, SimConfigError
 
-TINY_ACTOR = "models/maif-tiny-sdhn/actor.safetensors"
+from .envs_helpers import TINY_ACTOR, Row, greedy_lockstep
 
 
 def random_obs(rng: np.random.Generator, b: int, n: int) -> np.ndarray:
@@ -281,25 +281,9 @@ def play_in_process(cond: Conditions, seed: int, episodes: int,
     return out[:episodes]
 
 
-def play_lockstep(cond: Conditions, seed: int, episodes: int) -> list[tuple]:
-    rt = ActorRuntime.from_file(TINY_ACTOR)
+def play_lockstep(cond: Conditions, seed: int, episodes: int) -> list[Row]:
     sim = LockstepSim(SimConfig(env="maif-tiny", seed=seed, max_steps=60, conditions=cond))
-    rng = np.random.default_rng(0)
-    out: list[tuple] = []
-    for _ in range(episodes):
-        frame = sim.reset()
-        h = rt.initial_state(4)
-        result = None
-        while result is None:
-            a, _, h = rt.act(frame.obs, h, greedy=True, rng=rng)
-            for i in range(4):
-                assert sim.submit(i, frame.episode, frame.step, int(a[i]), 1) is None
-            frame, result = sim.advance()
-        o = sim.last_outcome
-        assert o is not None
-        out.append((o.completed, o.makespan, o.survivors_completed, o.survivors_makespan,
-                    o.failed))
-    return out
+    return greedy_lockstep(sim, episodes)[0]
 
 
 @pytest.mark.parametrize("cond", [

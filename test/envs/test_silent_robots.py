@@ -5,8 +5,6 @@ outcome (ConditionedEnv with that robot failed at that step) on the same instanc
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -16,8 +14,7 @@ from sdhn_sim.envs.conditions import ConditionedEnv, Conditions
 from sdhn_sim.faults import Fault, FaultsError, faults_text, parse_faults
 from sdhn_sim.lockstep import LockstepSim, SimConfig, SimConfigError
 
-TINY_ACTOR = Path(__file__).resolve().parents[2] / "models/maif-tiny-sdhn/actor.safetensors"
-Row = tuple[bool, int | None, bool, int | None, int]
+from .envs_helpers import TINY_ACTOR, Row, greedy_lockstep
 
 
 def in_process_with_failure(seed: int, robot: int, at_step: int, episodes: int,
@@ -48,29 +45,12 @@ def lockstep_with_fault(seed: int, robot: int, at_step: int, episodes: int, *, k
                         max_steps: int = 60) -> tuple[list[Row], list[dict], LockstepSim]:
     """The simulator core with the fault schedule; every robot it still sends observations to
     answers greedily, the cut one says nothing."""
-    rt = ActorRuntime.from_file(TINY_ACTOR)
     sim = LockstepSim(SimConfig(env="maif-tiny", seed=seed, max_steps=max_steps,
                                 fail_after_missed=k, faults=(Fault(0, at_step, robot),)))
-    rng = np.random.default_rng(0)
-    rows: list[Row] = []
-    events: list[dict] = []
-    for _ in range(episodes):
-        frame = sim.reset()
-        h = rt.initial_state(4)
-        result = None
-        while result is None:
-            a, _, h = rt.act(frame.obs, h, greedy=True, rng=rng)
-            for i in range(4):
-                if not sim.cut[i]:
-                    assert sim.submit(i, frame.episode, frame.step, int(a[i]), 1) is None
-            frame, result = sim.advance()
-            events += sim.take_events()
-        o = sim.last_outcome
-        assert o is not None
-        rows.append((o.completed, o.makespan, o.survivors_completed, o.survivors_makespan,
-                     o.failed))
-        assert result.failed_robots == o.failed
-        assert result.survivors_success == o.survivors_completed
+    rows, events, results = greedy_lockstep(sim, episodes)
+    for row, result in zip(rows, results, strict=True):
+        assert result.failed_robots == row[4]
+        assert result.survivors_success == row[2]
     return rows, events, sim
 
 

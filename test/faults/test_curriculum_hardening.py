@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from .errors import one_line
+
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "scripts" / "train_curriculum.py"
 
@@ -20,12 +22,6 @@ def curriculum(*args: str | Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     return subprocess.run([sys.executable, str(SCRIPT), *map(str, args)], env=env,
                           capture_output=True, text=True, timeout=120, check=False)
-
-
-def one_line(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 @pytest.mark.parametrize("stages", ["maif-solo", "maif-solo:abc", "nope:100", "maif-solo:0",

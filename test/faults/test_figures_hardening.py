@@ -14,6 +14,8 @@ import yaml
 from sdhn_experiments.figures import main
 from sdhn_train.config import Config
 
+from .errors import one_line
+
 
 def write_run(root: Path, task: str = "rware-3", method: str = "mappo", seed: int = 1) -> Path:
     run = root / f"{task}__{method}__s{seed}"
@@ -37,12 +39,6 @@ def figures(capsys: pytest.CaptureFixture[str], *args: str | Path) -> tuple[int,
     err = capsys.readouterr().err
     assert "Traceback" not in err
     return rc, err
-
-
-def one_line(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1, err
-    return lines[0]
 
 
 METRICS = {

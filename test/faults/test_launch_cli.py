@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from .errors import one_line
+
 REPO = Path(__file__).resolve().parents[2]
 LAUNCH = [sys.executable, "-m", "sdhn_bringup"]
 SHIPPED = REPO / "models" / "maif-tiny-sdhn" / "actor.safetensors"
@@ -19,12 +21,6 @@ SHIPPED = REPO / "models" / "maif-tiny-sdhn" / "actor.safetensors"
 def launch(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*LAUNCH, *args], capture_output=True, text=True, timeout=timeout,
                           cwd=REPO, check=False)
-
-
-def one_line(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 def wrong_weights(path: Path, obs_size: int = 99) -> Path:

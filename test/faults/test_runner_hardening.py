@@ -33,6 +33,8 @@ from sdhn_experiments.experiments import (
 )
 from sdhn_train.checkpoint import checkpoint_path, checkpoints, save_checkpoint
 
+from .errors import one_line
+
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
 
 BUDGET = """budgets:
@@ -73,12 +75,6 @@ def cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str]]:
         return rc, capsys.readouterr().err
 
     return call
-
-
-def one_line(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 def _suite(tmp_path: Path, text: str) -> Path:

@@ -14,6 +14,8 @@ import yaml
 
 from sdhn_train.config import Config
 
+from .errors import one_line
+
 ROOT = Path(__file__).resolve().parents[2]
 SHIP = ROOT / "scripts" / "ship_model.py"
 MODEL = ROOT / "models" / "maif-solo-mappo"  # a shipped maif-solo actor
@@ -25,12 +27,6 @@ def ship(tmp_path: Path, *args: str | Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), "TMPDIR": str(tmpdir)}
     return subprocess.run([sys.executable, str(SHIP), *map(str, args)], env=env,
                           capture_output=True, text=True, timeout=300, check=False)
-
-
-def one_line(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 def make_run(root: Path, task: str = "maif-solo") -> Path:

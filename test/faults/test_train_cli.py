@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from .errors import one_line
+
 TRAIN = str(Path(sys.executable).with_name("train"))
 SMALL = ["--env", "maif-tiny", "--num-envs", "2", "--no-progress",
          "--set", "ppo.rollout_len=32", "--set", "ppo.num_minibatches=1", "--set", "ppo.epochs=1",
@@ -28,12 +30,6 @@ SMALL = ["--env", "maif-tiny", "--num-envs", "2", "--no-progress",
 def train(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
     return subprocess.run([TRAIN, *args], capture_output=True, text=True, timeout=timeout,
                           check=False)
-
-
-def one_line(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 def snapshot(d: Path) -> dict[str, bytes]:

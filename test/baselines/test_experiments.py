@@ -3,7 +3,6 @@ the results equal an uninterrupted suite's), and the quick suite end to end with
 
 from __future__ import annotations
 
-import csv
 import io
 import json
 import os
@@ -25,6 +24,8 @@ from sdhn_experiments.experiments import (
 )
 from sdhn_experiments.figures import make_figures
 from sdhn_train.trainer import Trainer
+
+from .run_rows import metric_rows
 
 ROOT = Path(__file__).resolve().parents[2]
 SUITES = ROOT / "configs" / "suites"
@@ -53,13 +54,6 @@ budgets:
       qmix.buffer_episodes: 16
       qmix.learning_starts: 1
 """
-
-
-def _results(run_dir: Path) -> list[tuple[str, str, str]]:
-    """(step, tag, value) rows of a run's metrics, without the wall-clock dependent ones."""
-    with open(run_dir / "metrics.csv", newline="") as f:
-        return [(r["step"], r["tag"], r["value"]) for r in csv.DictReader(f)
-                if r["tag"] != "charts/steps_per_second"]
 
 
 def test_paper_suite_lists_the_comparison() -> None:
@@ -153,7 +147,7 @@ def test_resume_after_kill(tmp_path: Path) -> None:
     assert (logdir / names[0] / DONE).read_text() == first_marker  # not run again
     assert (logdir / names[0] / "train.log").stat().st_size == first_log_size
     for name in names:
-        assert _results(logdir / name) == _results(ref / name), f"{name} differs after resume"
+        assert metric_rows(logdir / name) == metric_rows(ref / name), f"{name} differs after resume"
         assert json.loads((logdir / name / DONE).read_text())["run"] == name
 
     # A third call does nothing; another budget in the same log dir is refused.

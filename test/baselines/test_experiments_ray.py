@@ -4,7 +4,6 @@ worker node lost, are retried and resumed from their last checkpoints, never res
 
 from __future__ import annotations
 
-import csv
 import io
 import json
 import os
@@ -32,11 +31,7 @@ pytest.importorskip("ray")
 from sdhn_experiments.bench.experiment_backends import SUITE
 from sdhn_experiments.ray_backend import ATTEMPTS, run_suite_ray
 
-
-def _rows(run_dir: Path) -> list[tuple[str, str, str]]:
-    with open(run_dir / "metrics.csv", newline="") as f:
-        return [(r["step"], r["tag"], r["value"]) for r in csv.DictReader(f)
-                if r["tag"] != "charts/steps_per_second"]
+from .run_rows import metric_rows
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +50,8 @@ def suite(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[RunSpec], Path
 def _same_as_local(runs: list[RunSpec], logdir: Path, ref: Path) -> None:
     for r in runs:
         assert (logdir / r.name / DONE).exists(), r.name
-        assert _rows(logdir / r.name) == _rows(ref / r.name), f"{r.name} differs from local"
+        assert metric_rows(logdir / r.name) == metric_rows(ref / r.name), (
+            f"{r.name} differs from local")
     assert results_table(load_runs(logdir)) == results_table(load_runs(ref))
 
 
@@ -112,14 +108,14 @@ def test_killed_ray_worker_resumes(suite: tuple[list[RunSpec], Path], tmp_path: 
     attempts = [json.loads(line) for line in (d / ATTEMPTS).read_text().splitlines()]
     assert len(attempts) == 2, attempts
     assert attempts[0]["resume_step"] is None
-    final = int(_rows(d)[-1][0])
+    final = int(metric_rows(d)[-1][0])
     assert attempts[1]["resume_step"] is not None and 0 < attempts[1]["resume_step"] < final, \
         (attempts, final)  # resumed from a checkpoint, not restarted
     assert attempts[1]["pid"] != attempts[0]["pid"]
     # No row twice where the uninterrupted run has it once (the final eval repeats the last
     # interval eval's step in both).
-    seen = Counter((s, t) for s, t, _ in _rows(d))
-    assert seen == Counter((s, t) for s, t, _ in _rows(ref / killed[0])), "duplicated rows"
+    seen = Counter((s, t) for s, t, _ in metric_rows(d))
+    assert seen == Counter((s, t) for s, t, _ in metric_rows(ref / killed[0])), "duplicated rows"
     for r in runs:
         if r.name not in killed:
             assert len((logdir / r.name / ATTEMPTS).read_text().splitlines()) == 1
@@ -266,13 +262,14 @@ def test_lost_worker_node_resumes(suite: tuple[list[RunSpec], Path], tmp_path: P
         # it ran on the node that was lost, in a process killed with it
         assert first_try["node"] == first.node_id and first_try["pid"] in pids, first_try
         assert retry["node"] == new, (retry, new)
-        final = int(_rows(logdir / r.name)[-1][0])
+        final = int(metric_rows(logdir / r.name)[-1][0])
         assert 0 < killed[r.name] <= retry["resume_step"] < final, \
             (r.name, retry, killed, final)  # resumed from its last checkpoint, not restarted
         resumed_at.append(retry["time"] - t_lost)
         assert (logdir / r.name / DONE).exists(), r.name
         # the same rows as the uninterrupted local run: none twice, none another run's
-        assert _rows(logdir / r.name) == _rows(ref / r.name), f"{r.name} differs from local"
+        assert metric_rows(logdir / r.name) == metric_rows(ref / r.name), (
+            f"{r.name} differs from local")
     print(f"\n[ray node lost] runs {sorted(killed)} at checkpoints {killed}; replacement joined "
           f"{t_joined - t_lost:.1f} s after the loss; their retries started "
           f"{', '.join(f'{t:.1f}' for t in sorted(resumed_at))} s after it; suite done "

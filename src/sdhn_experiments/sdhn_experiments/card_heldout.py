@@ -36,6 +36,7 @@ from sdhn_experiments.heldout_eval import (
     planner_makespans,
     set_checksum,
     set_instances,
+    stall_options,
     summarise,
 )
 from sdhn_policy.actor_runtime import ActorRuntime
@@ -200,14 +201,9 @@ def main(argv: list[str] | None = None) -> int:
         print("card_heldout_large: --temperature must be a finite number > 0", file=sys.stderr)
         return 2
     try:
-        rule = (None if args.break_stalls is None else
-                StallRule.parse(args.break_stalls) if args.break_stalls else StallRule())
+        rule = stall_options(args.break_stalls, args.final_approach)
     except ValueError as e:
-        print(f"card_heldout_large: --break-stalls: {e}", file=sys.stderr)
-        return 2
-    if args.final_approach and rule is None:
-        print("card_heldout_large: --final-approach requires --break-stalls (its hold would "
-              "deadlock corridors without stall breaking)", file=sys.stderr)
+        print(f"card_heldout_large: {e}", file=sys.stderr)
         return 2
     for model in args.models:
         try:

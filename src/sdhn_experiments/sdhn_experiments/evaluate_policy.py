@@ -35,6 +35,7 @@ from sdhn_experiments.heldout_eval import (
     records_json,
     set_checksum,
     set_instances,
+    stall_options,
     summarise,
     write_json,
 )
@@ -160,21 +161,15 @@ def main(argv: list[str] | None = None) -> int:
         print("evaluate_policy: --temperature applies to sampled play: add --sample or --unstick",
               file=sys.stderr)
         return 2
-    stall = None
-    if args.break_stalls is not None:
-        try:
-            stall = StallRule.parse(args.break_stalls) if args.break_stalls else StallRule()
-        except ValueError as e:
-            print(f"evaluate_policy: --break-stalls: {e}", file=sys.stderr)
-            return 2
-        if args.sample or args.unstick or args.temperature != 1.0:
-            print("evaluate_policy: --break-stalls is a greedy mode: not with --sample, "
-                  "--unstick or --temperature (its temperature is its fourth value)",
-                  file=sys.stderr)
-            return 2
-    if args.final_approach and stall is None:
-        print("evaluate_policy: --final-approach requires --break-stalls (its hold would "
-              "deadlock corridors without stall breaking)", file=sys.stderr)
+    try:
+        stall = stall_options(args.break_stalls, args.final_approach)
+    except ValueError as e:
+        print(f"evaluate_policy: {e}", file=sys.stderr)
+        return 2
+    if stall is not None and (args.sample or args.unstick or args.temperature != 1.0):
+        print("evaluate_policy: --break-stalls is a greedy mode: not with --sample, "
+              "--unstick or --temperature (its temperature is its fourth value)",
+              file=sys.stderr)
         return 2
     if args.max_steps is not None and args.max_steps < 1:
         print("evaluate_policy: --max-steps must be an integer >= 1", file=sys.stderr)

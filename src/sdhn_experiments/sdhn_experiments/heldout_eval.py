@@ -339,6 +339,22 @@ def write_json(path: Path, data: Any) -> None:
     atomic_write_bytes(path, (json.dumps(data, indent=1) + "\n").encode())
 
 
+def stall_options(break_stalls: str | None, final_approach: bool) -> StallRule | None:
+    """The stall rule of the evaluation CLIs' ``--break-stalls [CALM,PROGRESS,SAMPLE[,T]]``
+    (None: not given; bare: the actor's default rule) checked with ``--final-approach``, which
+    holds robots on their goals and so needs stall breaking. ValueError naming the option."""
+    rule = None
+    if break_stalls is not None:
+        try:
+            rule = StallRule.parse(break_stalls) if break_stalls else StallRule()
+        except ValueError as e:
+            raise ValueError(f"--break-stalls: {e}") from None
+    if final_approach and rule is None:
+        raise ValueError("--final-approach requires --break-stalls (its hold would deadlock "
+                         "corridors without stall breaking)")
+    return rule
+
+
 def print_table(text: str, markdown: Path | None) -> None:
     """An evaluation CLI's last word: its Markdown table on stdout, and in ``markdown`` (the
     ``--markdown`` file) when one is named."""

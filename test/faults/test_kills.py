@@ -411,3 +411,49 @@ def test_recorder_killed_before_first_chunk_leaves_an_mcap_replay_reads(tmp_path
     print(f"early kill: {out.stat().st_size} B file; replay exit {done.returncode}: {err}")
     assert done.returncode == 0 and len(err) == 1 and "truncated after 0 messages" in err[0], (
         f"exit {done.returncode}, stderr {done.stderr}")
+
+
+def test_trainer_that_hears_nothing_is_replaced_by_the_launcher(tmp_path: Path,
+                                                                 request: pytest.FixtureRequest
+                                                                 ) -> None:
+    """restart.deaf_trainer_s: a trainer alive but hearing nothing (a restarted trainer's DDS
+    participant that never gets a message, docs/reliability.md) looks to the launcher like a
+    SIGSTOPped one: its status file stands still while the simulator plays on. The launcher
+    SIGKILLs it, the restart resumes from the checkpoint, and learning goes on."""
+    ns = unique_ns(request)
+    watcher = Watcher(ns, N)
+    try:
+        cmd = launch_cmd(tmp_path, *TRAIN_TINY, f"team_ns={ns}", "restart.deaf_trainer_s=5")
+        with node_processes(cmd) as (launcher,):
+            started(launcher, watcher, version=2)
+            # the watch reads the trainer's status file (every 2 s): stopped before its first
+            # one, the trainer would be a process that never said anything, not a deaf one
+            status = tmp_path / "status" / "trainer.status.json"
+            assert wait_until(status.is_file, 20), launcher.output
+            pid = pids(launcher)["trainer"]
+            os.kill(pid, signal.SIGSTOP)
+            t_stop = time.time()
+            assert launcher.wait_for_line("hears nothing", timeout=60), launcher.output
+            assert launcher.wait_for_line("restarted trainer", timeout=20), launcher.output
+            assert wait_until(lambda: not alive(pid), 10), f"stopped trainer {pid} not killed"
+            said = next(ln for ln in launcher.lines if "hears nothing" in ln)
+            assert f"pid {pid}" in said and "killing it for a fresh process" in said, said
+            ready: list = []
+
+            def resumed() -> bool:
+                ready[:] = [ln for ln in log_lines(tmp_path / "logs" / "trainer.log")
+                            if ln.t > t_stop and ln.text.startswith("ready")]
+                return bool(ready)
+            assert wait_until(resumed, 90), f"no new trainer ready:\n{launcher.output}"
+            m = re.search(r"version=(\d+) \(resumed from step_", ready[0].text)
+            assert m, ready[0].text
+            v_resumed = int(m.group(1))
+            # the new process learns: a version past the one it resumed at
+            assert wait_until(lambda: watcher.seen.latest_version() > v_resumed, 120), (
+                f"no version after v{v_resumed}: {watcher.seen.versions()}\n{launcher.output}")
+            # once: the new process is not judged by the killed one's status file while it starts
+            assert sum("hears nothing" in ln for ln in launcher.lines) == 1, launcher.output
+            print(f"{said.strip()}; versions {watcher.seen.versions()}")
+            launcher.stop(signal.SIGTERM, timeout=25)
+    finally:
+        watcher.close()

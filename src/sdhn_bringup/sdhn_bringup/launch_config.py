@@ -17,6 +17,9 @@ from typing import Any
 class RestartConfig:
     policy: str = "never"  # never | on-failure
     max_restarts: int = 3  # per child
+    # train mode: a trainer that hears nothing this long while the simulator plays is killed
+    # for a fresh process under on-failure (sdhn_bringup.trainer_watch); 0 = never
+    deaf_trainer_s: float = 60.0
 
 
 # The trainer section is the trainer node's business: the launcher passes its fields through as

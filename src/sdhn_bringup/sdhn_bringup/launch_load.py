@@ -115,6 +115,11 @@ def validate(cfg: LaunchConfig) -> None:
     if cfg.restart.policy not in RESTART_POLICIES:
         raise LaunchConfigError(f"restart.policy: got {cfg.restart.policy!r}; allowed: "
                                 f"{', '.join(RESTART_POLICIES)}")
+    deaf = cfg.restart.deaf_trainer_s
+    if not (isinstance(deaf, int | float) and not isinstance(deaf, bool)
+            and 0 <= deaf < float("inf")):
+        raise LaunchConfigError(f"restart.deaf_trainer_s: got {deaf!r}; allowed: seconds >= 0 "
+                                "(0 = never)")
     for name in ("seed", "episodes", "max_steps", "restart.max_restarts"):
         obj: Any = cfg
         for part in name.split("."):

@@ -56,7 +56,10 @@ Config file fields (every one optional; see :class:`sdhn_bringup.launch_config.L
                           process, every topic of the team; sim = inside the simulator process,
                           the topics it sends and receives (obs, action, state, episode), with
                           no second DDS hop: deploy mode only)
-    restart: {policy: never | on-failure, max_restarts: 3}
+    restart: {policy: never | on-failure, max_restarts: 3, deaf_trainer_s: 60}
+                          (deaf_trainer_s: train mode, a trainer whose status stood still that
+                          long while the simulator played on is SIGKILLed and restarted under
+                          on-failure; 0 = never; sdhn_bringup.trainer_watch)
     managed: false        (true: actors start as unconfigured lifecycle nodes and the launcher
                           drives each one configure -> activate through the standard
                           lifecycle_msgs services, again after a restart; a refused configure,
@@ -126,6 +129,7 @@ from sdhn_bringup.launch_graph import (
     status_dir,
 )
 from sdhn_bringup.launch_load import LaunchConfigError, load_config
+from sdhn_bringup.trainer_watch import TrainerWatch
 from sdhn_sim.data_files import fastdds_profile
 from sdhn_sim.episode import CSV_FIELDS, EpisodeResult
 
@@ -197,10 +201,12 @@ class Child:
         self.lifecycle = ""
         self.lifecycle_reply: Any = None
         self.lifecycle_asked = 0.0  # monotonic time of the pending request
+        self.started_wall = 0.0  # wall-clock time of the last start (status files are stamped)
 
     def start(self) -> None:
         self.lifecycle, self.lifecycle_reply = "", None  # a restarted node starts unconfigured
         self.ready_path.unlink(missing_ok=True)  # written again by this start's node runner
+        self.started_wall = time.time()
         self.log = open(self.log_path, "ab")  # noqa: SIM115 - lives as long as the child
         self.proc = subprocess.Popen(self.spec.command(restart=self.restarts > 0), stdout=self.log,
                                      stderr=subprocess.STDOUT, env=self.env,
@@ -280,6 +286,9 @@ def describe_exit(code: int | None) -> str:
     return f"exit {code}"
 
 
+TRAINER_WATCH_PERIOD_S = 2.0  # the trainer rewrites its status file this often
+
+
 class Launcher:
     def __init__(self, cfg: LaunchConfig, out: IO[str] = sys.stdout) -> None:
         self.cfg = cfg
@@ -314,6 +323,9 @@ class Launcher:
         self.steps_done = 0
         self.t_steps0: float | None = None
         self.position = (0, 0)
+        self.trainer_watch = TrainerWatch(cfg.restart.deaf_trainer_s)
+        self._next_watch = 0.0
+        self._deaf_said = False
         self._tty = out.isatty()
         self.lifecycle: Any = None  # sdhn_base.ros.lifecycle_client.LifecycleClient when managed
         if any(c.spec.managed for c in self.children):
@@ -396,6 +408,44 @@ class Launcher:
                          f"return {row['return']}, length {row['length']}, missed "
                          f"{row['missed_actions']}, weights v{row['policy_version']}")
 
+    def watch_trainer(self) -> None:
+        """``restart.deaf_trainer_s`` (sdhn_bringup.trainer_watch): a trainer whose status file
+        has stood still while the simulator played on hears nothing; under ``on-failure`` it is
+        SIGKILLed and the restart path starts a fresh process (a new DDS participant) that
+        resumes from the newest checkpoint. Looked at once per trainer status period."""
+        now = time.monotonic()
+        trainer = next((c for c in self.children if c.spec.name == "trainer"), None)
+        if trainer is None or now < self._next_watch:
+            return
+        self._next_watch = now + TRAINER_WATCH_PERIOD_S
+        if trainer.proc is None or trainer.poll() is not None:
+            return
+        status = read_statuses(status_dir(self.run_dir)).get("trainer")
+        # Only this process's own status counts, once it is ready: until a restarted trainer has
+        # written its first one, the file still holds the killed process's frozen counters.
+        stamp = status.get("time") if status is not None else None
+        fresh = (trainer.ready and isinstance(stamp, int | float)
+                 and stamp >= trainer.started_wall)
+        counters = None if not fresh or status is None else json.dumps(
+            [status.get("transitions"), status.get("pending"), status.get("dropped")],
+            sort_keys=True)
+        played = self.steps_done + self.position[1]
+        deaf = self.trainer_watch.observe(now, trainer.proc.pid, counters, played)
+        if deaf is None:
+            return
+        what = (f"trainer (pid {trainer.proc.pid}) hears nothing: its transitions, pending "
+                f"records and drops stood still for {deaf:.0f}s while the simulator played "
+                f"{self.trainer_watch.steps_since(played)} steps")
+        can_restart = (self.cfg.restart.policy == "on-failure"
+                       and trainer.restarts < self.cfg.restart.max_restarts)
+        if can_restart:
+            self.say(f"{what}; killing it for a fresh process (restart.deaf_trainer_s)")
+            trainer.signal(signal.SIGKILL)
+        elif not self._deaf_said:
+            self._deaf_said = True
+            self.say(f"{what}; not restarted (restart.policy {self.cfg.restart.policy}, "
+                     f"{trainer.restarts}/{self.cfg.restart.max_restarts} restarts)")
+
     def kill_for_fault(self, robot: int, episode: int, step: int) -> None:
         """The fault schedule: SIGKILL the robot's actor, never to restart it."""
         child = next(c for c in self.children if c.spec.name == f"actor_{robot}")
@@ -439,6 +489,7 @@ class Launcher:
             else:
                 time.sleep(0.1)
             self.read_events()
+            self.watch_trainer()
             finished = self.check_children() or finished
             if not all_ready_said and all(c.ready for c in self.children):
                 # once, at the moment it happens: a short run may end before the next line

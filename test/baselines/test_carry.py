@@ -23,7 +23,8 @@ from sdhn_experiments.figures import read_run
 from sdhn_experiments.protocol_report import absolute_records
 from sdhn_train.checkpoint import checkpoints
 
-from .test_experiments import RESUME_SUITE, _results
+from .run_rows import metric_rows
+from .test_experiments import RESUME_SUITE
 
 # test_experiments' resume suite (its budget leaves several checkpoints per run), with two PPO
 # methods: the value-mixing runs would only make this slower.
@@ -43,7 +44,7 @@ def test_carry_skips_finished_and_resumes_unfinished_elsewhere(tmp_path: Path) -
     # would prune its checkpoints to the newest), as if the machine went away at the end ...
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     subprocess.run(prepare(runs[1], machine_a), env=env, check=True, capture_output=True)
-    reference = _results(machine_a / second)
+    reference = metric_rows(machine_a / second)
 
     # ... and then rolled back to an earlier checkpoint: no marker, midway.
     assert not (machine_a / second / DONE).exists()
@@ -69,7 +70,7 @@ def test_carry_skips_finished_and_resumes_unfinished_elsewhere(tmp_path: Path) -
     out = io.StringIO()
     counts = run_suite(runs, machine_b, jobs=1, out=out)
     assert counts == {"done": 1, "skipped": 1, "failed": 0}, out.getvalue()
-    assert _results(machine_b / second) == reference
+    assert metric_rows(machine_b / second) == reference
 
     # Restoring the older carried copy again keeps the finished run.
     again = restore(carried, machine_b)

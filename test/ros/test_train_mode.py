@@ -62,6 +62,11 @@ def train_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TrainRun]:
 
             ok = spin(45, switched)
             seconds = time.monotonic() - t0
+            # The observer takes messages only while it spins, and the actors can switch within
+            # a second of step 0: go on taking them until both once-a-second reports the
+            # diagnostics test checks are in (it once saw the recorder's and the actors' but no
+            # trainer's, twice in a row, in a full run on 7 Dec 2026; not reproduced since).
+            spin(10, lambda: {"/trainer", "/recorder"} <= seen.diagnostics.keys())
             sim.stop()
             assert ok, (f"actors never used version >= 3; versions seen "
                         f"{sorted({v for _a, v in seen.actions.values()})}\n--- trainer\n"

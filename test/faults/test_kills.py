@@ -422,6 +422,7 @@ def test_trainer_that_hears_nothing_is_replaced_by_the_launcher(tmp_path: Path,
     SIGKILLs it, the restart resumes from the checkpoint, and learning goes on."""
     ns = unique_ns(request)
     watcher = Watcher(ns, N)
+    stopped: list[int] = []
     try:
         cmd = launch_cmd(tmp_path, *TRAIN_TINY, f"team_ns={ns}", "restart.deaf_trainer_s=5")
         with node_processes(cmd) as (launcher,):
@@ -432,6 +433,9 @@ def test_trainer_that_hears_nothing_is_replaced_by_the_launcher(tmp_path: Path,
             assert wait_until(status.is_file, 20), launcher.output
             pid = pids(launcher)["trainer"]
             os.kill(pid, signal.SIGSTOP)
+            # a stopped process keeps its parent-death SIGTERM pending: should the test fail
+            # before the launcher kills it, the finally below does, or it would outlive the run
+            stopped.append(pid)
             t_stop = time.time()
             assert launcher.wait_for_line("hears nothing", timeout=60), launcher.output
             assert launcher.wait_for_line("restarted trainer", timeout=20), launcher.output
@@ -456,4 +460,7 @@ def test_trainer_that_hears_nothing_is_replaced_by_the_launcher(tmp_path: Path,
             print(f"{said.strip()}; versions {watcher.seen.versions()}")
             launcher.stop(signal.SIGTERM, timeout=25)
     finally:
+        for pid in stopped:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
         watcher.close()

@@ -324,6 +324,8 @@ class Launcher:
         self.t_steps0: float | None = None
         self.position = (0, 0)
         self.trainer_watch = TrainerWatch(cfg.restart.deaf_trainer_s)
+        # the same Child object across restarts (train mode only)
+        self.trainer = next((c for c in self.children if c.spec.name == "trainer"), None)
         self._next_watch = 0.0
         self._deaf_said = False
         self._tty = out.isatty()
@@ -414,21 +416,20 @@ class Launcher:
         SIGKILLed and the restart path starts a fresh process (a new DDS participant) that
         resumes from the newest checkpoint. Looked at once per trainer status period."""
         now = time.monotonic()
-        trainer = next((c for c in self.children if c.spec.name == "trainer"), None)
+        trainer = self.trainer
         if trainer is None or now < self._next_watch:
             return
         self._next_watch = now + TRAINER_WATCH_PERIOD_S
         if trainer.proc is None or trainer.poll() is not None:
             return
-        status = read_statuses(status_dir(self.run_dir)).get("trainer")
+        status = read_statuses(status_dir(self.run_dir)).get("trainer") or {}
         # Only this process's own status counts, once it is ready: until a restarted trainer has
         # written its first one, the file still holds the killed process's frozen counters.
-        stamp = status.get("time") if status is not None else None
+        stamp = status.get("time")
         fresh = (trainer.ready and isinstance(stamp, int | float)
                  and stamp >= trainer.started_wall)
-        counters = None if not fresh or status is None else json.dumps(
-            [status.get("transitions"), status.get("pending"), status.get("dropped")],
-            sort_keys=True)
+        counters = json.dumps([status.get("transitions"), status.get("pending"),
+                               status.get("dropped")], sort_keys=True) if fresh else None
         played = self.steps_done + self.position[1]
         deaf = self.trainer_watch.observe(now, trainer.proc.pid, counters, played)
         if deaf is None:

@@ -64,6 +64,11 @@ class PPOConfig:
     target_tau: float | None = opt(None, "target-critic soft-update rate per critic step; "
                                          "null = algorithm default (sdhn 0.01, mappo 1 = none)")
     reward_scale: float = opt(1.0, "multiply team rewards by this before GAE (logging unscaled)")
+    critic_warmup_updates: int = opt(
+        0, "PPO updates at the start of a run in which only the critic learns (the actor's "
+           "loss is logged, its optimiser does not step): a warm-started actor is not pushed by "
+           "a fresh critic's first advantages. One update = rollout_len x num_envs team steps; "
+           "0 = off")
     normalize_rewards: bool = opt(False, "divide rewards by the running std of the discounted "
                                          "return (in-process trainer; logging unscaled)")
 
@@ -78,6 +83,9 @@ class PPOConfig:
         need(self.entropy_coef >= 0, "ppo.entropy_coef", ">= 0", self.entropy_coef)
         need(self.max_grad_norm > 0, "ppo.max_grad_norm", "> 0", self.max_grad_norm)
         need(self.reward_scale > 0, "ppo.reward_scale", "> 0", self.reward_scale)
+        need(not isinstance(self.critic_warmup_updates, bool)
+             and isinstance(self.critic_warmup_updates, int) and self.critic_warmup_updates >= 0,
+             "ppo.critic_warmup_updates", "an integer >= 0", self.critic_warmup_updates)
         need(self.target_tau is None or 0.0 < self.target_tau <= 1.0, "ppo.target_tau",
              "(0, 1] or null", self.target_tau)
 
@@ -349,7 +357,10 @@ class PPOLearner:
             raise NonFiniteLossError(
                 f"non-finite loss in update {self.num_updates + 1}: actor "
                 f"{float(actor_loss)}, critic {float(critic_loss)}")
-        if pool is None:
+        if self.num_updates < self.cfg.critic_warmup_updates:  # the critic warms up alone
+            a_norm = torch.zeros((), device=self.device)
+            c_norm = self._critic_step(critic_loss)
+        elif pool is None:
             a_norm = self._actor_step(actor_loss)
             c_norm = self._critic_step(critic_loss)
         else:

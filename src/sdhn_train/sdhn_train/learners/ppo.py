@@ -83,9 +83,8 @@ class PPOConfig:
         need(self.entropy_coef >= 0, "ppo.entropy_coef", ">= 0", self.entropy_coef)
         need(self.max_grad_norm > 0, "ppo.max_grad_norm", "> 0", self.max_grad_norm)
         need(self.reward_scale > 0, "ppo.reward_scale", "> 0", self.reward_scale)
-        need(not isinstance(self.critic_warmup_updates, bool)
-             and isinstance(self.critic_warmup_updates, int) and self.critic_warmup_updates >= 0,
-             "ppo.critic_warmup_updates", "an integer >= 0", self.critic_warmup_updates)
+        need(self.critic_warmup_updates >= 0, "ppo.critic_warmup_updates", "an integer >= 0",
+             self.critic_warmup_updates)
         need(self.target_tau is None or 0.0 < self.target_tau <= 1.0, "ppo.target_tau",
              "(0, 1] or null", self.target_tau)
 
